@@ -1,0 +1,37 @@
+"""hnn_pl: Hamiltonian Neural Networks in PyTorch Lightning.
+
+``from hnn_pl import HNN, Baseline, odeint``. Names are imported on first use, so
+``import hnn_pl`` (and ``python -m hnn_pl --help``) does not load Lightning.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+_LAZY = {
+    "odeint": "hnn_pl.integrate",
+    "METHODS": "hnn_pl.integrate",
+    "HNN": "hnn_pl.models",
+    "Baseline": "hnn_pl.models",
+    "DynamicsModel": "hnn_pl.models",
+    "SimulatedData": "hnn_pl.data",
+    "TrajectoryDataModule": "hnn_pl.data",
+    "RolloutCallback": "hnn_pl.callbacks",
+    "cli_main": "hnn_pl.cli",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'hnn_pl' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])

@@ -1,0 +1,44 @@
+"""Finding configs: a path, or a bare name looked up in the bundled ``configs/``.
+
+Kept free of heavy imports so ``python -m hnn_pl --help`` is instant.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+#: the bundled configs (the repository's top-level ``configs/``)
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def resolve_config(name: str) -> str:
+    """A config path as given if it exists, else ``configs/<name>[.yaml]``.
+
+    Raises:
+        FileNotFoundError: neither exists; the message lists the bundled configs.
+    """
+    if Path(name).is_file():
+        return name
+    for candidate in (CONFIG_DIR / name, CONFIG_DIR / f"{name}.yaml"):
+        if candidate.is_file():
+            return str(candidate)
+    raise FileNotFoundError(
+        f"config {name!r} is neither a file nor one of the bundled configs: "
+        + ", ".join(bundled_configs())
+    )
+
+
+def bundled_configs() -> list[str]:
+    """Names of the YAML files in :data:`CONFIG_DIR`."""
+    return sorted(p.name for p in CONFIG_DIR.glob("*.yaml"))
+
+
+def resolve_config_args(args: list[str]) -> list[str]:
+    """Apply :func:`resolve_config` to ``--config NAME``, ``--config=NAME``, ``-c NAME``."""
+    out = list(args)
+    for i, arg in enumerate(out):
+        if arg in ("--config", "-c") and i + 1 < len(out):
+            out[i + 1] = resolve_config(out[i + 1])
+        elif arg.startswith("--config="):
+            out[i] = "--config=" + resolve_config(arg.split("=", 1)[1])
+    return out

@@ -1,0 +1,80 @@
+"""The measured pendulum's data (paper task 3)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from torch import Tensor
+
+from hnn_pl.data.base import TrajectoryDataModule
+from hnn_pl.systems.real_pendulum import RealPendulum, load_real_pendulum
+
+
+class RealPendulumData(TrajectoryDataModule):
+    """Forward differences of the measured trajectory, split as the reference.
+
+    With states ``y_i = (θ_i, θ̇_i)`` at times ``t_i`` (556 samples, mostly
+    ``Δt = 1/6``), inputs are ``y_i`` and targets ``(y_{i+1} − y_i)/(t_{i+1} − t_i)``
+    with the real gaps: 555 pairs. Test = pairs ``test_start … test_stop − 1``
+    (default 444…553: 110 pairs, ``t`` = 81.0 … 99.17), train = every other pair
+    (445). The held-out trajectory for rollouts is the measured segment itself,
+    ``test_y (110, 1, 2)`` at ``test_t (110,)``; there is no ground truth beyond
+    it. Energy: :class:`~hnn_pl.systems.real_pendulum.RealPendulum` (fitted).
+
+    Args:
+        path: a data file of the same format (``None``: the shipped copy).
+        test_start, test_stop: the held-out pairs ``[test_start, test_stop)``.
+        batch_size, full_batch_steps, seed, cache_dir, dtype: see
+            :class:`~hnn_pl.data.base.TrajectoryDataModule`.
+    """
+
+    def __init__(
+        self,
+        path: str | None = None,
+        test_start: int = 444,
+        test_stop: int = 554,
+        batch_size: int | None = None,
+        full_batch_steps: int = 100,
+        seed: int = 0,
+        cache_dir: str | None = None,
+        dtype: str = "float32",
+    ) -> None:
+        super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
+        self.save_hyperparameters(ignore=["cache_dir"])
+        self.path = path
+        self.test_start, self.test_stop = test_start, test_stop
+        self.system = RealPendulum()
+
+    @property
+    def state_dim(self) -> int:
+        return 2
+
+    def cache_params(self) -> dict[str, Any]:
+        return {"path": self.path, "test": [self.test_start, self.test_stop]}
+
+    def generate(self) -> dict[str, Tensor]:
+        t, y = load_real_pendulum(self.path)
+        x = y[:-1]
+        dx = (y[1:] - y[:-1]) / (t[1:] - t[:-1])[:, None]
+        a, b = self.test_start, self.test_stop
+        return {
+            "x_train": x[list(range(a)) + list(range(b, len(x)))],
+            "dx_train": dx[list(range(a)) + list(range(b, len(x)))],
+            "x_test": x[a:b],
+            "dx_test": dx[a:b],
+            "test_t": t[a:b],
+            "test_y": x[a:b, None],
+        }
+
+    def rollout_target(
+        self, t_end: float | None = None, n_points: int | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """The measured test segment ``(t (110,), y (110, 1, 2))``.
+
+        Raises:
+            ValueError: for ``t_end`` other than ``None``: measured data has no
+                ground truth beyond the recording.
+        """
+        if t_end is not None:
+            raise ValueError("the real pendulum has no ground truth off the recording: t_end: null")
+        return self.test_t, self.test_y

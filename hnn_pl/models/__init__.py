@@ -1,0 +1,7 @@
+"""LightningModules: one model per file."""
+
+from hnn_pl.models.base import DynamicsModel
+from hnn_pl.models.baseline import Baseline
+from hnn_pl.models.hnn import HNN
+
+__all__ = ["DynamicsModel", "Baseline", "HNN"]

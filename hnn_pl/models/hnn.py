@@ -1,0 +1,28 @@
+"""The Hamiltonian Neural Network: an MLP for ``H_θ`` and the field ``J∇H_θ``."""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from hnn_pl.models.base import DynamicsModel
+from hnn_pl.nets import MLP, HamiltonianField
+
+
+class HNN(DynamicsModel):
+    """``dy/dt = J∇H_θ(y) = (∂H_θ/∂p, −∂H_θ/∂q)``, ``H_θ = MLP(y): 2k → h → h → 1``.
+
+    The loss compares ``J∇H_θ`` with the target ``dy/dt``. For the tanh MLP the
+    input gradient is computed in closed form, so training needs one ordinary
+    backward pass and evaluation works under ``torch.inference_mode``; other
+    activations fall back to autograd. Arguments as
+    :class:`~hnn_pl.models.base.DynamicsModel`.
+    """
+
+    def build_field(
+        self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
+    ) -> HamiltonianField:
+        return HamiltonianField(MLP(input_dim, 1, hidden_dim, n_hidden, activation))
+
+    def hamiltonian(self, y: Tensor) -> Tensor:
+        """The learned ``H_θ(y)``: ``(batch, 2k) -> (batch,)``."""
+        return self.field.hamiltonian(y)

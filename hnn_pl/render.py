@@ -1,0 +1,281 @@
+"""Pure-torch renderer of gym Pendulum-v0's scene, drawn directly at ``size × size``.
+
+The reference code (``experiment-pixels/data.py``) renders gym's pyglet viewer, keeps
+red minus green, crops and resizes with ``scipy.misc.imresize``; none of that runs on
+a current stack. :func:`render_pendulum` draws the same scene analytically, batched
+over any number of angles, anti-aliased by pixel coverage. :func:`save_png` is a tiny
+zlib PNG writer (no PIL) and :func:`frame_strip` tiles frames for a picture.
+
+Run ``python -m hnn_pl.render [path]`` to (re)draw ``docs/pixel_frames.png``.
+
+Scene (gym ``PendulumEnv.render``, Pendulum-v0 era)::
+
+    viewer = rendering.Viewer(500, 500); viewer.set_bounds(-2.2, 2.2, -2.2, 2.2)
+    rod = rendering.make_capsule(1, .2); rod.set_color(.8, .3, .3)
+    axle = rendering.make_circle(.05); axle.set_color(0, 0, 0)
+    self.pole_transform.set_rotation(self.state[0] + np.pi/2)
+
+``make_capsule(1, .2)`` is the box ``[0, 1] × [−0.1, 0.1]`` plus discs of radius 0.1 at
+both ends, i.e. all points within 0.1 of the segment from the pivot to the tip. The
+reference keeps ``R − G``: background ``255 − 255 = 0``, rod ``204 − 76.5 ≈ 0.5·255``,
+black axle ``0 − 0 = 0`` (a small hole in the rod at the pivot, drawn after the rod).
+Its crop ``X[440:-220, 330:-330]`` of the 1000 × 1000 framebuffer (a 2× HiDPI screen;
+the crop needs more than 500 rows) at ``1000 / 4.4`` pixels per world unit is the
+window :data:`GYM_CROP_X`, :data:`GYM_CROP_Y` below, which ``imresize`` (PIL bilinear)
+shrinks to 28 × 28.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import zlib
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+#: pixels per world unit of the framebuffer the reference cropped (1000 px over 4.4 units)
+_REF_PX = 1000 / 4.4
+#: horizontal extent of the reference crop, world units about the pivot (±170 px)
+GYM_CROP_X: tuple[float, float] = (-170 / _REF_PX, 170 / _REF_PX)
+#: vertical extent, world units *below* the pivot (60 px above to 280 px below it)
+GYM_CROP_Y: tuple[float, float] = (-60 / _REF_PX, 280 / _REF_PX)
+
+_FILTERS = ("box", "tent")
+
+
+def _coverage(sd: Tensor, filt: str, scale: float = 1.0) -> Tensor:
+    """Edge profile, in place: ``scale ×`` the fraction of a pixel inside a shape, from
+    the signed distance ``sd`` (in pixels, negative inside) of the pixel centre to the
+    shape's boundary.
+
+    ``box``: the linear 1-pixel ramp ``clamp(½ − sd, 0, 1)`` (exact area coverage for an
+    axis-aligned straight edge). ``tent``: the same edge seen through a tent filter of
+    half-width 1 pixel (what PIL's bilinear down-sampling in the reference does).
+    """
+    if filt == "box":
+        return sd.mul_(-scale).add_(0.5 * scale).clamp_(0.0, scale)
+    x = sd.clamp_(-1.0, 1.0)
+    return torch.where(x < 0, 1 - 0.5 * (1 + x) ** 2, 0.5 * (1 - x) ** 2).mul_(scale)
+
+
+def _tent_matrix(size: int, k: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """``(size, k·size)`` rows of a tent of half-width one output pixel (``k`` input
+    pixels) over the input pixel centres, each row normalised to 1 (PIL renormalises
+    its resampling weights at the borders the same way)."""
+    n = (torch.arange(size * k, dtype=dtype, device=device) + 0.5) / k
+    j = torch.arange(size, dtype=dtype, device=device) + 0.5
+    w = (1 - (n.view(1, -1) - j.view(-1, 1)).abs()).clamp_(min=0)
+    return w / w.sum(1, keepdim=True)
+
+
+def render_pendulum(
+    theta: Tensor | float,
+    size: int = 28,
+    *,
+    length: float = 1.0,
+    width: float = 0.2,
+    intensity: float = 0.5,
+    axle_radius: float = 0.05,
+    x_range: tuple[float, float] = GYM_CROP_X,
+    y_range: tuple[float, float] = GYM_CROP_Y,
+    supersample: int = 1,
+    filter: str = "box",
+    chunk: int | None = None,
+) -> Tensor:
+    """Gym Pendulum-v0 frames (reference preprocessing), ``(...,) -> (..., size, size)``.
+
+    **Angle.** ``θ = 0`` is the rod hanging straight down from the pivot; ``θ > 0``
+    swings it to the **right** of the image (towards ``+x``), as in gym's viewer and
+    in the reference's ``get_theta`` (``θ = θ_gym − π``). The rod points from the pivot
+    along ``(sin θ, −cos θ)`` in the world (``y`` up), i.e. ``(sin θ, cos θ)`` in the
+    image (``x`` right, ``y`` down). The tip is at ``length·(sin θ, cos θ)``.
+
+    **Geometry.** The rod is a capsule: all points within ``width/2`` of the segment
+    from the pivot to the tip, of value ``intensity`` on a background 0. A disc of
+    radius ``axle_radius`` about the pivot (gym's black axle, drawn on top) is 0
+    again; ``axle_radius = 0`` leaves the rod whole.
+
+    **World → pixel.** With image coordinates ``(x, y)`` in world units about the
+    pivot (``y`` down), the window ``x ∈ [x0, x1]``, ``y ∈ [y0, y1]`` (``x_range``,
+    ``y_range``; default the reference crop, ``x ∈ ±0.748``, ``y ∈ [−0.264, 1.232]``)
+    is cut into ``size × size`` pixels of ``hx = (x1 − x0)/size`` by
+    ``hy = (y1 − y0)/size``: pixel ``[i, j]`` (row ``i`` from the top, column ``j``
+    from the left) covers ``[x0 + j·hx, x0 + (j+1)·hx] × [y0 + i·hy, y0 + (i+1)·hy]``,
+    its centre is ``(x0 + (j + ½)hx, y0 + (i + ½)hy)``. Inverse: a point ``(x, y)``
+    sits at fractional index ``j = (x − x0)/hx − ½``, ``i = (y − y0)/hy − ½``. With the
+    defaults a pixel is 0.0534 world units, the rod 18.7 px long and 3.7 px wide and the
+    pivot at ``(i, j) = (4.44, 13.5)``.
+
+    **Anti-aliasing.** Each pixel holds ``intensity ×`` the fraction of it the shape
+    covers: from the signed distance ``d`` of the pixel centre to the capsule (and to
+    the axle disc) through a 1-pixel ramp ``clamp(½ − d/h, 0, 1)`` (``h = √(hx·hy)``),
+    exact for straight axis-aligned edges; against the exact coverage a pixel is off
+    by at most ~0.06·intensity and a frame's total by < 0.5 %. ``supersample = k > 1``
+    evaluates that at ``k × k`` sub-pixels (ramp ``1/k`` px wide) and averages them,
+    converging to the exact coverage (``k = 4``: ≤ 0.012·intensity per pixel) at
+    ``k²`` times the cost. ``filter = "tent"`` instead sees the scene through a tent
+    of half-width 1 pixel, which is what PIL's bilinear down-sampling (``imresize``,
+    340 → 28 px) did to the reference frames: softer edges, same total intensity.
+    With ``k = 1`` it is a 1-D tent profile of ``d`` (within ~0.1·intensity of the
+    separable 2-D tent), with ``k > 1`` the exact separable tent applied to the
+    sub-pixels. Values lie in ``[0, intensity]``; a pixel whose centre lies more than
+    ½ pixel (``box``) or 1 pixel (``tent``) inside the rod equals ``intensity``, one
+    whose centre lies that far outside the rod is exactly 0.
+
+    Not drawn: gym's ``clockwise.png`` torque arrow (the 2019 gym draws it at a
+    default 1 × 1 scale whenever ``last_u`` is falsy, possibly over the rod) and the
+    reference's 8-bit quantisation of the frames.
+
+    Args:
+        theta: angles in radians, any shape ``(...)``; a float tensor's dtype sets the
+            output's, otherwise the default dtype. Device follows ``theta``.
+        size: frame side in pixels.
+        length: rod length (pivot to the centre of the tip's cap), world units.
+        width: rod width (capsule diameter), world units.
+        intensity: value of a fully covered rod pixel (``R − G`` of gym's colour,
+            ``(204 − 77)/255 ≈ 0.5``).
+        axle_radius: radius of the black axle disc at the pivot (0: none).
+        x_range: ``(x0, x1)`` of the window, world units, ``+x`` to the right.
+        y_range: ``(y0, y1)`` of the window, world units **below** the pivot.
+        supersample: ``k``, sub-pixels per pixel side.
+        filter: ``"box"`` (pixel coverage) or ``"tent"`` (the reference's bilinear
+            down-sampling).
+        chunk: frames rendered per batch. Default: as many as keep each elementwise
+            operation under PyTorch's parallelisation grain (32 768 elements, 41
+            frames of 28 × 28), so that the work runs on one thread without
+            synchronisation; measured on 2 busy cores, that is 3–10 × faster than
+            batches of 1024 frames on 2 threads.
+
+    Returns:
+        Tensor of shape ``(..., size, size)``, values in ``[0, intensity]``.
+    """
+    if filter not in _FILTERS:
+        raise ValueError(f"filter must be one of {_FILTERS}, got {filter!r}")
+    if supersample < 1 or size < 1:
+        raise ValueError("size and supersample must be >= 1")
+    theta = torch.as_tensor(theta)
+    dtype = theta.dtype if theta.is_floating_point() else torch.get_default_dtype()
+    theta = theta.to(dtype)
+    batch_shape = theta.shape
+    k, fine = supersample, size * supersample
+    (x0, x1), (y0, y1) = x_range, y_range
+    hx, hy = (x1 - x0) / fine, (y1 - y0) / fine
+    h = math.sqrt(hx * hy)
+    # the fine-grid ramp is box-shaped; a tent is then applied when shrinking by k
+    ramp = filter if k == 1 else "box"
+    xs = x0 + (torch.arange(fine, dtype=dtype, device=theta.device) + 0.5) * hx
+    ys = y0 + (torch.arange(fine, dtype=dtype, device=theta.device) + 0.5) * hy
+    xs, ys = xs.view(1, 1, fine), ys.view(1, fine, 1)
+    r = width / 2
+    # the axle disc only touches the few pixels within axle_radius + 2 px of the pivot
+    axle, rows, cols = None, slice(0, 0), slice(0, 0)
+    if axle_radius > 0:
+        reach = axle_radius + 2 * h
+        rows = (ys.view(-1).abs() <= reach).nonzero().view(-1)
+        cols = (xs.view(-1).abs() <= reach).nonzero().view(-1)
+        if rows.numel() and cols.numel():
+            rows = slice(int(rows[0]), int(rows[-1]) + 1)
+            cols = slice(int(cols[0]), int(cols[-1]) + 1)
+            d = torch.hypot(xs[..., cols], ys[:, rows])
+            axle = _coverage(d.sub_(axle_radius).div_(h), ramp, intensity)
+    tent = None
+    if k > 1 and filter == "tent":
+        tent = _tent_matrix(size, k, dtype, theta.device)
+    if chunk is None:
+        chunk = max(1, 32768 // (fine * fine))
+    flat = theta.reshape(-1)
+    frames = torch.empty(flat.numel(), size, size, dtype=dtype, device=theta.device)
+    for start in range(0, flat.numel(), chunk):
+        th = flat[start : start + chunk].view(-1, 1, 1)
+        s, c = torch.sin(th), torch.cos(th)
+        along = xs * s + ys * c  # coordinate along the rod, 0 at the pivot
+        across = xs * c - ys * s  # perpendicular offset
+        # distance beyond either end of the segment: max(|along − L/2| − L/2, 0)
+        excess = along.sub_(length / 2).abs_().sub_(length / 2).clamp_(min=0.0)
+        sd = torch.hypot(across, excess).sub_(r).div_(h)
+        img = _coverage(sd, ramp, intensity)
+        if axle is not None:
+            img[..., rows, cols] = (img[..., rows, cols] - axle).clamp_(min=0.0)
+        if k > 1:
+            if tent is None:
+                img = img.view(-1, size, k, size, k).mean((2, 4))
+            else:
+                img = tent @ img @ tent.T
+        frames[start : start + chunk] = img
+    return frames.reshape(*batch_shape, size, size)
+
+
+def frame_strip(
+    frames: Tensor, scale: int = 4, gap: int = 1, gap_value: int = 128, vmax: float | None = None
+) -> Tensor:
+    """Tile frames ``(n, H, W)`` left to right into one ``uint8`` image.
+
+    Each frame is mapped linearly from ``[0, vmax]`` (default its overall maximum) to
+    ``[0, 255]``, upscaled ``scale ×`` (nearest) and separated by ``gap`` pixels of
+    ``gap_value``. Returns ``(H·scale, n·W·scale + (n − 1)·gap)``.
+    """
+    frames = frames.detach().cpu().to(torch.float64)
+    vmax = float(frames.max()) if vmax is None else vmax
+    img = (frames / max(vmax, 1e-12)).clamp(0, 1).mul(255).round().to(torch.uint8)
+    img = img.repeat_interleave(scale, dim=-2).repeat_interleave(scale, dim=-1)
+    n, hh, _ = img.shape
+    sep = torch.full((hh, gap), gap_value, dtype=torch.uint8)
+    parts: list[Tensor] = []
+    for i in range(n):
+        if i and gap:
+            parts.append(sep)
+        parts.append(img[i])
+    return torch.cat(parts, dim=1)
+
+
+def save_png(path: str | Path, image_uint8: Tensor | Sequence) -> None:
+    """Write an 8-bit PNG with nothing but ``zlib``.
+
+    Args:
+        path: file to write (parent directories are created).
+        image_uint8: ``(H, W)`` grayscale or ``(H, W, 3)`` RGB, values 0..255 (a tensor,
+            an array or nested lists; converted with ``torch.as_tensor``).
+    """
+    img = torch.as_tensor(image_uint8)
+    if img.dtype != torch.uint8:
+        if img.is_floating_point() or img.min() < 0 or img.max() > 255:
+            raise ValueError("save_png expects integer values in 0..255 (uint8)")
+        img = img.to(torch.uint8)
+    if img.dim() == 2:
+        color_type, channels = 0, 1
+    elif img.dim() == 3 and img.shape[-1] == 3:
+        color_type, channels = 2, 3
+    else:
+        raise ValueError(f"expected (H, W) or (H, W, 3), got {tuple(img.shape)}")
+    height, width = img.shape[:2]
+    rows = img.cpu().contiguous().reshape(height, width * channels)
+    raw = torch.cat([torch.zeros(height, 1, dtype=torch.uint8), rows], dim=1)  # filter 0
+    data = raw.numpy().tobytes()
+
+    def chunk(tag: bytes, payload: bytes) -> bytes:
+        body = tag + payload
+        return struct.pack(">I", len(payload)) + body + struct.pack(">I", zlib.crc32(body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, color_type, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+    png += chunk(b"IDAT", zlib.compress(data, 9)) + chunk(b"IEND", b"")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(png)
+
+
+def _main(argv: Sequence[str] | None = None) -> None:
+    import sys
+
+    argv = sys.argv[1:] if argv is None else argv
+    path = argv[0] if argv else "docs/pixel_frames.png"
+    theta = torch.linspace(-math.pi / 2, math.pi / 2, 9, dtype=torch.float64)
+    save_png(path, frame_strip(render_pendulum(theta), scale=4, gap=1))
+    print(f"wrote {path}: 9 frames at θ = −π/2, −3π/8, …, π/2")
+
+
+if __name__ == "__main__":
+    _main()

@@ -1,0 +1,76 @@
+"""The interface every physical system implements.
+
+A state is ``y = cat([q, p], -1)`` with shape ``(..., 2k)`` for ``k`` degrees of
+freedom; batch dimensions come first. The symplectic matrix is
+``J = [[0, I], [-I, 0]]`` so Hamilton's equations read ``dy/dt = J ∇H(y)``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import torch
+from torch import Tensor
+
+from hnn_pl.integrate import odeint
+
+
+def symplectic_gradient(grad_h: Tensor) -> Tensor:
+    """``J ∇H = (∂H/∂p, −∂H/∂q)`` for a gradient of shape ``(..., 2k)``."""
+    dh_dq, dh_dp = grad_h.chunk(2, dim=-1)
+    return torch.cat([dh_dp, -dh_dq], dim=-1)
+
+
+class HamiltonianSystem(ABC):
+    """A conservative system ``dy/dt = J ∇H(y)`` with a known ``H``.
+
+    Subclasses set ``dof`` (degrees of freedom ``k``) and implement
+    :meth:`hamiltonian`, :meth:`vector_field` (analytic, not by autograd) and
+    :meth:`sample_initial`; they may override :meth:`energy` (the physical energy
+    the metrics compare, by default ``H``) and :meth:`exact_solution`.
+    """
+
+    dof: int = 1
+    #: tolerances of the float64 ground-truth integration (overridable per system)
+    rtol: float = 1e-10
+    atol: float = 1e-10
+
+    @property
+    def state_dim(self) -> int:
+        """``2k``: the length of the last axis of a state."""
+        return 2 * self.dof
+
+    @abstractmethod
+    def hamiltonian(self, y: Tensor) -> Tensor:
+        """``H(y)``: shape ``(..., 2k) -> (...)``."""
+
+    @abstractmethod
+    def vector_field(self, t: Tensor | float | None, y: Tensor) -> Tensor:
+        """``dy/dt = J ∇H(y)`` in closed form: shape ``(..., 2k) -> (..., 2k)``."""
+
+    def energy(self, y: Tensor) -> Tensor:
+        """The physical energy used by the metrics, ``(..., 2k) -> (...)``. Default ``H``."""
+        return self.hamiltonian(y)
+
+    @abstractmethod
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        """Draw ``n`` initial states, float64, shape ``(n, 2k)``, from ``generator``."""
+
+    def exact_solution(self, t: Tensor, y0: Tensor) -> Tensor | None:
+        """Closed-form ``y(t)`` of shape ``(T, n, 2k)`` for ``y0 (n, 2k)``, or ``None``."""
+        return None
+
+    def trajectory(self, y0: Tensor, t: Tensor) -> Tensor:
+        """Ground truth ``y(t)``, shape ``(T, n, 2k)``, computed in float64.
+
+        The closed form where there is one, otherwise adaptive ``dopri5`` with
+        per-trajectory error control at ``rtol``/``atol`` of the system. The result
+        is returned in ``y0``'s dtype.
+        """
+        y64, t64 = y0.to(torch.float64), t.to(torch.float64)
+        out = self.exact_solution(t64, y64)
+        if out is None:
+            out = odeint(
+                self.vector_field, y64, t64, method="dopri5", rtol=self.rtol, atol=self.atol
+            )
+        return out.to(y0.dtype)

@@ -1,0 +1,122 @@
+"""The command line end to end: a short fit of every config, test, checkpoints."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from hnn_pl.cli import cli_main
+from hnn_pl.config_paths import CONFIG_DIR, bundled_configs, resolve_config
+
+CONFIGS = bundled_configs()
+
+
+def _common(tmp_path: Path) -> list[str]:
+    return [
+        f"--trainer.default_root_dir={tmp_path}",
+        f"--trainer.logger.init_args.save_dir={tmp_path}",
+        f"--data.init_args.cache_dir={tmp_path / 'cache'}",
+        "--trainer.enable_progress_bar=false",
+        "--data.init_args.full_batch_steps=2",
+    ]
+
+
+def _fit(config: str, tmp_path: Path, steps: int = 4):
+    args = ["fit", "--config", config, f"--trainer.max_steps={steps}"]
+    args += ["--trainer.check_val_every_n_epoch=1", *_common(tmp_path)]
+    return cli_main(args)
+
+
+def _tags(log_dir: str) -> dict[str, list[str]]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(log_dir, size_guidance={"images": 0, "scalars": 0})
+    acc.Reload()
+    return acc.Tags()
+
+
+def test_bare_config_names_resolve_to_the_bundled_dir(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert resolve_config("spring.yaml") == str(CONFIG_DIR / "spring.yaml")
+    assert resolve_config("spring") == str(CONFIG_DIR / "spring.yaml")
+    (tmp_path / "spring.yaml").write_text("trainer: {}\n")
+    assert resolve_config("spring.yaml") == "spring.yaml"
+    with pytest.raises(FileNotFoundError, match="spring.yaml"):
+        resolve_config("nonexistent.yaml")
+
+
+def test_top_level_help_lists_commands_and_configs():
+    out = subprocess.run(
+        [sys.executable, "-m", "hnn_pl", "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "fit" in out and "spring.yaml" in out
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
+    cli = _fit(config, tmp_path)
+    trainer = cli.trainer
+    assert trainer.global_step == 4
+    log_dir = trainer.logger.log_dir
+    assert Path(log_dir).name.startswith("version_")
+    ckpts = list(Path(log_dir, "checkpoints").glob("*.ckpt"))
+    assert len(ckpts) == 1
+    tags = _tags(log_dir)
+    expected = {"train/loss", "val/loss", "rollout/energy_mse", "rollout/state_mse"}
+    if "baseline" not in config:
+        expected.add("rollout/conserved_drift")
+    else:
+        assert "rollout/conserved_drift" not in tags["scalars"]
+    assert expected <= set(tags["scalars"])
+    assert {"rollout/phase_portrait", "rollout/energy"} <= set(tags["images"])
+
+
+@pytest.mark.parametrize("config", ["spring.yaml", "spring_baseline.yaml"])
+def test_test_command_reports_losses_and_rollout_metrics(config, tmp_path):
+    ckpt = _fit(config, tmp_path).trainer.checkpoint_callback.best_model_path
+    # the default Trainer(inference_mode=True) must work too: the HNN field needs no autograd
+    for inference_mode in ("false", "true"):
+        cli = cli_main(
+            [
+                "test",
+                "--config",
+                config,
+                "--ckpt_path",
+                ckpt,
+                f"--trainer.inference_mode={inference_mode}",
+            ]
+            + _common(tmp_path)
+        )
+        metrics = cli.trainer.callback_metrics
+        assert {"test/loss", "rollout/energy_mse", "rollout/state_mse"} <= set(metrics)
+        assert all(torch.isfinite(v) for v in metrics.values())
+
+
+def test_predict_and_validate_commands(tmp_path):
+    ckpt = _fit("pendulum.yaml", tmp_path).trainer.checkpoint_callback.best_model_path
+    cli = cli_main(
+        ["validate", "--config", "pendulum.yaml", "--ckpt_path", ckpt] + _common(tmp_path)
+    )
+    assert "val/loss" in cli.trainer.callback_metrics
+    cli = cli_main(
+        ["predict", "--config", "pendulum.yaml", "--ckpt_path", ckpt] + _common(tmp_path)
+    )
+    assert cli.trainer.predict_loop.predictions[0].shape == (1125, 2)
+
+
+def test_checkpoint_round_trip_rolls_out_the_same(tmp_path):
+    from hnn_pl import HNN
+
+    cli = _fit("spring.yaml", tmp_path, steps=10)
+    model = cli.model
+    loaded = HNN.load_from_checkpoint(cli.trainer.checkpoint_callback.best_model_path)
+    assert all(loaded.hparams[k] == model.hparams[k] for k in loaded.hparams)
+    y0 = cli.datamodule.test_y[0]
+    t = torch.linspace(0, 5, 50)
+    torch.testing.assert_close(
+        loaded.rollout(y0, t, method="rk4"), model.rollout(y0, t, method="rk4")
+    )
