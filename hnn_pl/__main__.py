@@ -16,6 +16,8 @@ commands:
   validate   validate a checkpoint: ... validate --config spring.yaml --ckpt_path PATH
   test       test a checkpoint (losses and rollout metrics)
   predict    predicted dy/dt on the held-out states
+  reproduce  train and evaluate every task x model x seed, write RESULTS.md
+             (python -m hnn_pl reproduce --help)
 
 A --config that is not a file is looked up in the bundled configs/ (".yaml" optional).
 `python -m hnn_pl <command> --help` lists every option of a command.
@@ -31,6 +33,10 @@ def main(argv: list[str] | None = None) -> None:
 
         print(USAGE.format(configs=", ".join(bundled_configs()) or "(none)"))
         return
+    if argv[0] == "reproduce":
+        from hnn_pl.reproduce import main as reproduce
+
+        sys.exit(reproduce(argv[1:]))
     from hnn_pl.cli import cli_main
 
     cli_main(argv)

@@ -17,9 +17,12 @@ class _DropTips(logging.Filter):
 
 
 def quiet_lightning() -> None:
-    """Drop Lightning's advertising tip and its pytree ``LeafSpec`` FutureWarning."""
+    """Drop Lightning's advertising tip, its pytree ``LeafSpec`` FutureWarning and its
+    warning about ``args`` given beside ``sys.argv`` (we pass the resolved argv)."""
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropTips())
     warnings.filterwarnings("ignore", message=".*LeafSpec.*", category=FutureWarning)
+    warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
+    warnings.filterwarnings("ignore", message=".*The dirpath has changed.*")
 
 
 class HNNCLI(LightningCLI):

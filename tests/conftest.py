@@ -1,4 +1,5 @@
-"""Shared fixtures: a private data cache and threads fixed for repeatable numbers."""
+"""Shared fixtures: a private data cache; one thread (the tests's tensors are small, and
+a second thread only adds contention)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import torch
 
 @pytest.fixture(autouse=True, scope="session")
 def _threads():
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)
 
 
 @pytest.fixture(autouse=True)

@@ -87,3 +87,15 @@ def test_minibatches_cover_every_row_once_per_epoch():
     for rows in epochs:
         assert torch.equal(rows.sort(0).values, x)
     assert not torch.equal(epochs[0], epochs[1])
+
+
+def test_full_batch_epochs_repeat_the_batch(tmp_path):
+    dm = _spring(tmp_path, full_batch_steps=7)
+    dm.setup()
+    loader = dm.train_dataloader()
+    batches = list(loader)
+    assert len(loader) == len(batches) == 7
+    assert all(b[0] is dm.x_train for b in batches)
+    mini = _spring(tmp_path, batch_size=100, full_batch_steps=7)
+    mini.setup()
+    assert len(mini.train_dataloader()) == 8

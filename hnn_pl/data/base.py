@@ -169,6 +169,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.batch_size,
             shuffle=True,
             generator=self._generator(1),
+            repeats=self.full_batch_steps,
         )
 
     def val_dataloader(self) -> TensorBatches:

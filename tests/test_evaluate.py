@@ -1,0 +1,121 @@
+"""Evaluation protocols: a perfect model scores ~0, quirks do what they say."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch import nn
+
+from hnn_pl.data import RealPendulumData, SimulatedData
+from hnn_pl.evaluate import (
+    REFERENCE,
+    ReferenceProtocol,
+    _box_starts,
+    _scipy_rollout,
+    evaluate_clean,
+    evaluate_reference,
+    grouped_mean,
+)
+from hnn_pl.systems import MassSpring, Pendulum
+
+
+class TrueField(nn.Module):
+    """A 'model' whose field is the system's own (optionally damped)."""
+
+    def __init__(self, system, damping: float = 0.0) -> None:
+        super().__init__()
+        self.system, self.damping = system, damping
+
+    def vector_field(self, t, y):
+        f = self.system.vector_field(t, y)
+        return f - self.damping * torch.cat([torch.zeros_like(y[..., :1]), y[..., 1:]], -1)
+
+
+@pytest.fixture(scope="module")
+def spring_dm(tmp_path_factory):
+    dm = SimulatedData(MassSpring(), cache_dir=str(tmp_path_factory.mktemp("c")), dtype="float64")
+    dm.setup()
+    return dm
+
+
+@pytest.mark.parametrize("task", ["spring", "pendulum"])
+def test_reference_protocol_scores_the_true_field_near_zero(task, spring_dm, tmp_path):
+    dm = (
+        spring_dm
+        if task == "spring"
+        else SimulatedData(Pendulum(), n_points=45, cache_dir=str(tmp_path))
+    )
+    dm.setup()
+    good = evaluate_reference(TrueField(dm.system), dm, task)
+    bad = evaluate_reference(TrueField(dm.system, damping=0.05), dm, task)
+    # scipy's default atol = 1e-6 (quirk 5) bounds the accuracy of both paths
+    assert good["energy_mse"] < 1e-8
+    assert bad["energy_mse"] > 1e3 * max(good["energy_mse"], 1e-12)
+    assert good["n_trajectories"] == 15 and good["t_end"] == 20.0
+    assert math.isfinite(bad["energy_mse_pm"]) and bad["energy_mse_pm"] > 0
+
+
+def test_spring_time_stretch_compounds_per_trial():
+    """Trial k (1…15) of the spring is read at 1.09**(k+1) · t: the reference's in-place
+    bug, whose last horizon is t ≈ 79 (SPEC)."""
+    system = MassSpring()
+    p = REFERENCE["spring"]
+    y0 = _box_starts(p, 2, seed=0)
+    t = torch.linspace(0, 20, 100, dtype=torch.float64)
+    stretch = p.time_stretch ** torch.arange(2, 17, dtype=torch.float64)
+    tight = ReferenceProtocol(rtol=1e-10, atol=1e-10)
+    y = _scipy_rollout(system.vector_field, y0, t, tight, stretch)
+    for k in (0, 14):
+        exact = system.exact_solution(stretch[k] * t, y0[k : k + 1])[:, 0]
+        torch.testing.assert_close(y[:, k], exact, rtol=1e-6, atol=1e-7)
+    assert evaluate_reference.__module__ == "hnn_pl.evaluate"
+    assert 79 < 20 * float(stretch[-1]) < 80
+
+
+def test_box_starts_cover_both_signs_of_the_range():
+    y0 = _box_starts(ReferenceProtocol(n_starts=2000), 2, seed=0)
+    mag = y0.abs()
+    assert mag.min() >= 0.2 and mag.max() <= 1.0
+    assert 0.4 < (y0 > 0).double().mean() < 0.6
+
+
+def test_pendulum_reference_energy_is_q2_plus_p2(tmp_path):
+    dm = SimulatedData(Pendulum(), n_points=45, cache_dir=str(tmp_path))
+    dm.setup()
+    p = REFERENCE["pendulum"]
+    assert p.energy == "q2p2" and p.time_stretch == 1.0
+    default_energy = evaluate_reference(
+        TrueField(dm.system, 0.05), dm, "pendulum", ReferenceProtocol(energy="system")
+    )
+    quirk = evaluate_reference(TrueField(dm.system, 0.05), dm, "pendulum")
+    assert default_energy["energy_mse"] != pytest.approx(quirk["energy_mse"], rel=1e-3)
+
+
+def test_clean_protocol_scores_the_true_field_near_zero(spring_dm):
+    good = evaluate_clean(TrueField(spring_dm.system), spring_dm, "spring")
+    bad = evaluate_clean(TrueField(spring_dm.system, 0.05), spring_dm, "spring")
+    assert good["energy_mse"] < 1e-14 and good["state_mse"] < 1e-12
+    assert bad["energy_mse"] > 1e-4
+    assert good["n_trajectories"] == 25 and good["t_end"] == 20.0
+
+
+def test_real_pendulum_protocols_use_the_measured_segment(tmp_path):
+    dm = RealPendulumData(cache_dir=str(tmp_path), dtype="float64")
+    dm.setup()
+    ref = evaluate_reference(TrueField(dm.system), dm, "real_pendulum")
+    clean = evaluate_clean(TrueField(dm.system), dm, "real_pendulum")
+    assert ref["n_trajectories"] == clean["n_trajectories"] == 1
+    assert ref["t_end"] == pytest.approx(99.1667, abs=1e-3)
+    # the ideal pendulum is not the measured one (friction): a finite, non-zero error
+    assert 1e-6 < clean["energy_mse"] < 1.0
+
+
+def test_grouped_mean_is_std_of_group_means_over_root_groups():
+    x = torch.arange(15.0)
+    mean, pm = grouped_mean(x, 5)
+    groups = torch.tensor([1.0, 4.0, 7.0, 10.0, 13.0])
+    assert mean == pytest.approx(7.0)
+    assert pm == pytest.approx(float(groups.std() / 5**0.5))
+    assert math.isnan(grouped_mean(x[:1], 1)[1])
