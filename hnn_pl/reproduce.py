@@ -157,6 +157,11 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         f"({meta['workers']} worker processes, 1 torch thread each; data generation "
         f"{sum(meta['data_s'].values()):.1f} s). Ours: mean ± std over seeds; "
         "published: the reference README (± there is over trials, not seeds).",
+        *(
+            f"Merged with the runs of an earlier call: {c['command']} on {c['date']}, "
+            f"{c['total_s']:.0f} s."
+            for c in meta.get("earlier_calls", [])
+        ),
         "",
         "| task | model | seeds | train loss (ours / paper) | test loss (ours / paper) "
         "| energy MSE, reference protocol (ours / paper) | energy MSE, clean protocol "
@@ -187,6 +192,28 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
             ref = b["ref_energy"][0] / h["ref_energy"][0]
             clean = b["clean_energy"][0] / h["clean_energy"][0]
             lines.append(f"| {task} | {ref:.3g} | {pub:.3g} | {clean:.3g} |")
+    lines += ["", "## Energy MSE per seed (reference protocol / clean protocol)", ""]
+    seeds = sorted({r["seed"] for r in records})
+    lines += ["| task | model | " + " | ".join(f"seed {s}" for s in seeds) + " |"]
+    lines += ["|---|---|" + "---|" * len(seeds)]
+    for row in rows:
+        cells = []
+        for seed in seeds:
+            run = next(
+                (
+                    r
+                    for r in records
+                    if (r["task"], r["model"], r["seed"]) == (row["task"], row["model"], seed)
+                ),
+                None,
+            )
+            ok = run is not None and "error" not in run
+            cells.append(
+                f"{run['reference']['energy_mse']:.2e} / {run['clean']['energy_mse']:.2e}"
+                if ok
+                else "—"
+            )
+        lines.append(f"| {row['task']} | {row['model']} | " + " | ".join(cells) + " |")
     lines += ["", "## Protocols", ""]
     lines += [
         "Reference: the published procedure with its quirks (`hnn_pl.evaluate.REFERENCE`); "
@@ -234,6 +261,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-steps", type=int, default=None, help="override every config's steps")
     parser.add_argument("--out", default="RESULTS.md", help="the Markdown table")
     parser.add_argument("--json", default=None, help="the raw records (default: OUT with .json)")
+    parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="keep the runs already in the JSON file that this call does not redo",
+    )
     args = parser.parse_args(argv)
     out = Path(args.out)
     json_path = Path(args.json) if args.json else out.with_suffix(".json")
@@ -244,6 +276,12 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     data_s = _prepare_data(list(dict.fromkeys(t for t, _, _ in jobs)))
     records: list[dict] = []
+    if args.merge and json_path.exists():
+        redo = set(jobs)
+        old = json.loads(json_path.read_text())
+        records = [r for r in old["runs"] if (r["task"], r["model"], r["seed"]) not in redo]
+        earlier = old["meta"].pop("earlier_calls", []) + [old["meta"]]
+    kept = len(records)
     meta = {
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
@@ -252,6 +290,8 @@ def main(argv: list[str] | None = None) -> int:
         "workers": max(args.workers, 1),
         "data_s": data_s,
     }
+    if kept:
+        meta["earlier_calls"] = earlier
 
     def done(record: dict) -> None:
         records.append(record)
@@ -266,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
             else "FAILED: " + record["error"].strip().splitlines()[-1]
         )
         print(
-            f"[{len(records)}/{len(jobs)} {meta['total_s']:.0f} s] {record['task']} "
+            f"[{len(records) - kept}/{len(jobs)} {meta['total_s']:.0f} s] {record['task']} "
             f"{record['model']} seed {record['seed']}: {status}",
             flush=True,
         )

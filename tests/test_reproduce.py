@@ -56,3 +56,18 @@ def test_a_failed_run_keeps_the_others(tmp_path, monkeypatch):
     md = (tmp_path / "R.md").read_text()
     assert "## Failed runs" in md and "boom" in md
     assert "| spring | hnn | 1 |" in md
+
+
+def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = str(tmp_path / "R.md")
+    common = ["--seeds", "1", "--workers", "0", "--max-steps", "2", "--out", out]
+    assert reproduce.main(["--tasks", "real_pendulum", *common]) == 0
+    assert reproduce.main(["--tasks", "spring", "--models", "hnn", "--merge", *common]) == 0
+    data = json.loads((tmp_path / "R.json").read_text())
+    assert sorted((r["task"], r["model"]) for r in data["runs"]) == [
+        ("real_pendulum", "baseline"),
+        ("real_pendulum", "hnn"),
+        ("spring", "hnn"),
+    ]
+    assert "Merged with the runs of an earlier call" in (tmp_path / "R.md").read_text()
