@@ -30,11 +30,12 @@ def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch):
         ):
             assert math.isfinite(value) and value >= 0
         assert ("conserved_drift" in r["clean"]) == (r["model"] == "hnn")
-    results, ratios, protocols = md.split("\n## ")[:3]
+    results, ratios, per_seed, protocols = md.split("\n## ")[:4]
     names = ("| spring |", "| real_pendulum |")
     assert sum(line.startswith(names) for line in results.splitlines()) == 4
     assert sum(line.startswith(names) for line in ratios.splitlines()) == 2
     assert protocols.startswith("Protocols")
+    assert sum(line.startswith(names) for line in per_seed.splitlines()) == 4
     assert "3.593e-02" in md  # the published spring HNN test loss beside ours
     assert "1.09" in md  # the spring quirk is listed in the protocol table
 
