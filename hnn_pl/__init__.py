@@ -19,6 +19,11 @@ _LAZY = {
     "SimulatedData": "hnn_pl.data",
     "TrajectoryDataModule": "hnn_pl.data",
     "RolloutCallback": "hnn_pl.callbacks",
+    "AutoencoderHNN": "hnn_pl.models",
+    "AutoencoderBaseline": "hnn_pl.models",
+    "AutoencoderDynamicsModel": "hnn_pl.models",
+    "PixelPendulumData": "hnn_pl.data.pixel",
+    "PixelRolloutCallback": "hnn_pl.callbacks",
     "cli_main": "hnn_pl.cli",
 }
 

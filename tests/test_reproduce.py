@@ -72,3 +72,15 @@ def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
         ("spring", "hnn"),
     ]
     assert "Merged with the runs of an earlier call" in (tmp_path / "R.md").read_text()
+
+
+def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = ["--tasks", "pixel", "--seeds", "1", "--workers", "0", "--max-steps", "2"]
+    assert reproduce.main([*argv, "--out", str(tmp_path / "R.md")]) == 0
+    runs = json.loads((tmp_path / "R.json").read_text())["runs"]
+    assert sorted(r["model"] for r in runs) == ["baseline", "hnn"]
+    for r in runs:
+        assert r["reference"]["n_trajectories"] == 1 and r["clean"]["n_trajectories"] > 1
+        assert math.isfinite(r["clean"]["pixel_mse"]) and math.isfinite(r["test_loss"])
+    assert "| pixel | first held-out" in (tmp_path / "R.md").read_text()

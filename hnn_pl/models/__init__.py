@@ -1,7 +1,13 @@
 """LightningModules: one model per file."""
 
+from hnn_pl.models.autoencoder_hnn import (
+    AutoencoderBaseline,
+    AutoencoderDynamicsModel,
+    AutoencoderHNN,
+)
 from hnn_pl.models.base import DynamicsModel
 from hnn_pl.models.baseline import Baseline
 from hnn_pl.models.hnn import HNN
 
 __all__ = ["DynamicsModel", "Baseline", "HNN"]
+__all__ += ["AutoencoderDynamicsModel", "AutoencoderHNN", "AutoencoderBaseline"]
