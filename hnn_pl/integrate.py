@@ -19,7 +19,9 @@ method                 order  symplectic             adaptive             evalua
 =====================  =====  =====================  ===================  ======================
 
 Fixed-step methods take one step per output interval, or cut each interval into
-``ceil(|Δt| / step_size)`` equal steps so that outputs land exactly on ``t``.
+``ceil(|Δt| / step_size)`` equal steps so that outputs land exactly on ``t``; a ratio
+within float32 rounding of an integer counts as that integer, so a grid built in
+float32 (``linspace(0, 20, 201)``, ``step_size=0.1``) takes one step per interval.
 ``dopri5`` controls the error of every trajectory separately: each row has its own
 time and step size, finished rows leave the active set, and outputs come from the
 4th-order Dormand-Prince dense output, so steps are not clipped to the output grid.
@@ -121,13 +123,14 @@ class _FixedStep(_Solver):
 
     def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Tensor:
         ts = t.tolist()
-        guard = 1.0 - 16 * torch.finfo(y0.dtype).eps
+        eps = torch.finfo(torch.float32).eps
         cache = self._start(func, t[0], y0)
         y, ys = y0, [y0]
         for t_a, t_b in zip(ts[:-1], ts[1:], strict=True):
             n = 1
             if self.step_size is not None:
-                n = max(1, math.ceil((t_b - t_a) / self.step_size * guard))
+                slack = 8 * eps * max(abs(t_a), abs(t_b)) / self.step_size
+                n = max(1, math.ceil((t_b - t_a) / self.step_size - slack))
             h = (t_b - t_a) / n
             for k in range(n):
                 tk = torch.tensor(t_a + k * h, dtype=y0.dtype, device=y0.device)

@@ -243,6 +243,10 @@ def test_fixed_step_counts(dtype):
         opts = {"check_separable": check}
         odeint(field, y0, t, method="leapfrog", step_size=0.05, options=opts)
         assert field.calls == 2 * 20 + extra
+    long_t = torch.linspace(0, 20, 201, dtype=F32)
+    field = Counter(spring.vector_field)
+    odeint(field, y0, long_t, method="rk4", step_size=0.1)
+    assert field.calls == 4 * 200, field.calls
 
 
 def test_dense_output_matches_coarse_grid():
