@@ -546,8 +546,8 @@ def bench_integrators(quick: bool = False, log: Callable[[str], None] = print) -
         body.append(
             f"\nNote: float32 fixed-step rows make more field calls than float64 ones (rk4 "
             f"h = 0.1, pendulum, 25 starts: {r32.calls} vs {r64.calls}). The output times "
-            "in float32 are not exact multiples of h, and `odeint` cuts an interval into "
-            "`ceil(Δt / h · (1 − 16 eps))` steps, so some 0.1-long intervals get 2 steps."
+            "are rounded, and `odeint` cuts an interval into `ceil(Δt / h − slack)` "
+            "steps (slack: float32 rounding of t), so some intervals get an extra step."
         )
     body += ["", "### Comparisons at equal tolerance\n"]
     body += [f"- {line}" for line in _integrator_comparisons(rows, sweeps)]
