@@ -21,6 +21,7 @@ import statistics
 import sys
 import time
 import traceback
+import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
@@ -148,6 +149,13 @@ def summarize(records: list[dict]) -> list[dict]:
                 row[key] = _mean_std([get(r) for r in ok if get(r) is not None])
             rows.append(row)
     return rows
+
+
+def _contributing(calls: list[dict], records: list[dict]) -> list[dict]:
+    """The earlier calls that still own a kept run (runs are tagged with their call's
+    ``id``); calls or runs written before tagging existed are all kept."""
+    owners = {r.get("call") for r in records}
+    return [c for c in calls if "id" not in c or None in owners or c["id"] in owners]
 
 
 def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
@@ -295,8 +303,10 @@ def main(argv: list[str] | None = None) -> int:
         old = json.loads(json_path.read_text())
         records = [r for r in old["runs"] if (r["task"], r["model"], r["seed"]) not in redo]
         earlier = old["meta"].pop("earlier_calls", []) + [old["meta"]]
+        earlier = _contributing(earlier, records)
     kept = len(records)
     meta = {
+        "id": uuid.uuid4().hex,
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}",
@@ -308,6 +318,7 @@ def main(argv: list[str] | None = None) -> int:
         meta["earlier_calls"] = earlier
 
     def done(record: dict) -> None:
+        record["call"] = meta["id"]
         records.append(record)
         meta["total_s"] = time.perf_counter() - start
         json_path.write_text(json.dumps({"meta": meta, "runs": records}, indent=1))

@@ -72,6 +72,12 @@ def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
         ("spring", "hnn"),
     ]
     assert "Merged with the runs of an earlier call" in (tmp_path / "R.md").read_text()
+    assert len(data["meta"]["earlier_calls"]) == 1
+    assert reproduce.main(["--tasks", "real_pendulum", "--merge", *common]) == 0
+    data = json.loads((tmp_path / "R.json").read_text())
+    assert [c["command"] for c in data["meta"]["earlier_calls"]] == [
+        "`python -m hnn_pl reproduce --tasks spring --models hnn --merge " + " ".join(common) + "`"
+    ], "the first call's runs were all redone, so it no longer appears"
 
 
 def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
