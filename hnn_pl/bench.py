@@ -46,7 +46,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from hnn_pl.integrate import odeint, scipy_fun
+from hnn_pl.integrate import odeint, scipy_odeint
 from hnn_pl.nets import MLP, DirectField, HamiltonianField
 from hnn_pl.systems import MassSpring, Pendulum, ThreeBody, TwoBody
 
@@ -256,27 +256,13 @@ def _odeint_runner(method: str, **kwargs) -> Callable:
 
 
 def _scipy_runner(tol: float, per_trajectory: bool) -> Callable:
-    from scipy.integrate import solve_ivp
-
-    def solve(func, y0: Tensor, t_np) -> Tensor:
-        sol = solve_ivp(
-            scipy_fun(func, tuple(y0.shape), y0.dtype),
-            (float(t_np[0]), float(t_np[-1])),
-            y0.double().reshape(-1).numpy(),
-            method="RK45",
-            t_eval=t_np,
-            rtol=tol,
-            atol=tol,
-        )
-        if sol.status != 0:
-            raise RuntimeError(f"solve_ivp: {sol.message}")
-        return torch.from_numpy(sol.y.T.copy()).reshape(len(t_np), *y0.shape)
+    def solve(func, y0: Tensor, t: Tensor) -> Tensor:
+        return scipy_odeint(func, y0, t, "RK45", y0.dtype, rtol=tol, atol=tol)
 
     def run(func, y0: Tensor, t: Tensor) -> Tensor:
-        t_np = t.double().numpy()
         if not per_trajectory:
-            return solve(func, y0, t_np)
-        return torch.cat([solve(func, y0[b : b + 1], t_np) for b in range(y0.shape[0])], 1)
+            return solve(func, y0, t)
+        return torch.cat([solve(func, y0[b : b + 1], t) for b in range(y0.shape[0])], 1)
 
     return run
 
@@ -354,21 +340,7 @@ def _sweeps(quick: bool) -> dict[tuple[str, int], list[_Setting]]:
 
 def _reference(func, y0: Tensor, t: Tensor, tol: float = REFERENCE_TOL) -> Tensor:
     """Float64 ``(T, B, D)`` from scipy's DOP853 at ``rtol = atol = tol`` (flattened batch)."""
-    from scipy.integrate import solve_ivp
-
-    t_np = t.double().numpy()
-    sol = solve_ivp(
-        scipy_fun(func, tuple(y0.shape)),
-        (t_np[0], t_np[-1]),
-        y0.double().reshape(-1).numpy(),
-        method="DOP853",
-        t_eval=t_np,
-        rtol=tol,
-        atol=tol,
-    )
-    if sol.status != 0:
-        raise RuntimeError(f"reference solve failed: {sol.message}")
-    return torch.from_numpy(sol.y.T.copy()).reshape(len(t_np), *y0.shape)
+    return scipy_odeint(func, y0, t, "DOP853", rtol=tol, atol=tol)
 
 
 @dataclass
@@ -540,15 +512,6 @@ def bench_integrators(quick: bool = False, log: Callable[[str], None] = print) -
         "target (float32 and float64 rows compete).\n"
     )
     body.append(_pareto_table(rows, sweeps))
-    r32 = _find(rows, "pendulum", 25, "rk4", "h=0.1", "float32")
-    r64 = _find(rows, "pendulum", 25, "rk4", "h=0.1", "float64")
-    if r32 and r64 and r32.calls != r64.calls:
-        body.append(
-            f"\nNote: float32 fixed-step rows make more field calls than float64 ones (rk4 "
-            f"h = 0.1, pendulum, 25 starts: {r32.calls} vs {r64.calls}). The output times "
-            "are rounded, and `odeint` cuts an interval into `ceil(Δt / h − slack)` "
-            "steps (slack: float32 rounding of t), so some intervals get an extra step."
-        )
     body += ["", "### Comparisons at equal tolerance\n"]
     body += [f"- {line}" for line in _integrator_comparisons(rows, sweeps)]
     facts: dict[str, Any] = {

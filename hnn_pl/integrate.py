@@ -53,6 +53,7 @@ __all__ = [
     "RK4",
     "odeint",
     "scipy_fun",
+    "scipy_odeint",
 ]
 
 Field = Callable[[Tensor, Tensor], Tensor]
@@ -620,3 +621,43 @@ def scipy_fun(
             return dy.detach().reshape(-1).to("cpu", torch.float64).numpy()
 
     return fun
+
+
+def scipy_odeint(
+    func: Field,
+    y0: Tensor,
+    t: Tensor,
+    method: str = "RK45",
+    dtype: torch.dtype = torch.float64,
+    **solve_ivp_kwargs: Any,
+) -> Tensor:
+    """A whole batch in one ``scipy.integrate.solve_ivp`` call on the flattened state.
+
+    Args:
+        func: the field ``func(t, y)``, evaluated in ``dtype`` through :func:`scipy_fun`.
+        y0: ``(batch, dim)`` initial states.
+        t: ``(T,)`` increasing output times; the first is the initial time.
+        method: scipy's method name (``"RK45"``, ``"DOP853"``, …).
+        dtype: the dtype ``func`` is evaluated in.
+        **solve_ivp_kwargs: passed on, e.g. ``rtol`` and ``atol``.
+
+    Returns:
+        ``(T, batch, dim)`` float64 states at ``t``.
+
+    Raises:
+        RuntimeError: if scipy reports a failed solve.
+    """
+    from scipy.integrate import solve_ivp
+
+    t_np = t.detach().to("cpu", torch.float64).numpy()
+    sol = solve_ivp(
+        scipy_fun(func, tuple(y0.shape), dtype),
+        (float(t_np[0]), float(t_np[-1])),
+        y0.detach().to("cpu", torch.float64).reshape(-1).numpy(),
+        method=method,
+        t_eval=t_np,
+        **solve_ivp_kwargs,
+    )
+    if not sol.success:
+        raise RuntimeError(f"solve_ivp ({method}) failed: {sol.message}")
+    return torch.from_numpy(sol.y.T.copy()).reshape(len(t_np), *y0.shape)

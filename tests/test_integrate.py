@@ -8,9 +8,8 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from scipy.integrate import solve_ivp
 
-from hnn_pl.integrate import METHODS, odeint, scipy_fun
+from hnn_pl.integrate import METHODS, odeint, scipy_fun, scipy_odeint
 from hnn_pl.systems.mass_spring import MassSpring
 from hnn_pl.systems.pendulum import Pendulum
 
@@ -51,18 +50,7 @@ def _spring_states(n: int = 16, seed: int = 0) -> torch.Tensor:
 
 def _dop853(func, y0: torch.Tensor, t: torch.Tensor, tol: float = 1e-12) -> torch.Tensor:
     """Reference ``(T, B, D)`` float64 from scipy's DOP853 on the flattened batch."""
-    t_np = t.double().numpy()
-    sol = solve_ivp(
-        scipy_fun(func, tuple(y0.shape)),
-        (t_np[0], t_np[-1]),
-        y0.double().reshape(-1).numpy(),
-        method="DOP853",
-        rtol=tol,
-        atol=tol,
-        t_eval=t_np,
-    )
-    assert sol.success
-    return torch.from_numpy(sol.y.T.copy()).reshape(len(t_np), *y0.shape)
+    return scipy_odeint(func, y0, t, "DOP853", rtol=tol, atol=tol)
 
 
 class Counter:
@@ -393,3 +381,14 @@ def test_scipy_fun_round_trip():
     torch.testing.assert_close(out, ref, rtol=0, atol=1e-8)
     fun32 = scipy_fun(pend.vector_field, (4, 2), dtype=F32)
     assert np.abs(fun32(0.0, y0.reshape(-1).numpy()) - dy).max() < 1e-5
+
+
+def test_scipy_odeint_matches_analytic_spring_and_reports_failure():
+    spring = MassSpring()
+    y0 = _spring_states(5)
+    t = torch.linspace(0, 10, 41, dtype=F64)
+    out = scipy_odeint(spring.vector_field, y0, t, "DOP853", rtol=1e-12, atol=1e-12)
+    assert out.shape == (41, 5, 2) and out.dtype == F64
+    torch.testing.assert_close(out, spring.exact_solution(t, y0), rtol=0, atol=1e-9)
+    with pytest.raises(RuntimeError, match="RK45"):
+        scipy_odeint(lambda t, y: y**2, torch.ones(1, 1, dtype=F64), torch.tensor([0.0, 2.0]))
