@@ -1,14 +1,28 @@
-"""``python -m hnn_pl {fit,validate,test,predict} --config X.yaml`` (LightningCLI)."""
+"""``python -m hnn_pl {fit,validate,test,predict} --config X.yaml`` (LightningCLI).
+
+Classes are given by their short names (``--model HNN --data SimulatedData
+--data.system MassSpring``, ``--model.help HNN``) or by import path: jsonargparse
+resolves a short name among the subclasses imported when the parser is built, so this
+module imports every model, data module and system (only the full commands load this
+module; ``python -m hnn_pl --help`` does not).
+"""
 
 from __future__ import annotations
 
 import logging
+import os
 import warnings
 
 from lightning.pytorch import LightningDataModule, LightningModule
-from lightning.pytorch.cli import ArgsType, LightningCLI
+from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
 
+# imported for their subclasses: what makes the short class names resolve
+from hnn_pl import data, models, systems
+from hnn_pl.__main__ import program_name
 from hnn_pl.config_paths import resolve_config_args
+
+#: the packages whose classes the CLI knows by their short names
+REGISTERED = (models, data, systems)
 
 
 class _DropTips(logging.Filter):
@@ -17,12 +31,24 @@ class _DropTips(logging.Filter):
 
 
 def quiet_lightning() -> None:
-    """Drop Lightning's advertising tip, its pytree ``LeafSpec`` FutureWarning and its
-    warning about ``args`` given beside ``sys.argv`` (we pass the resolved argv)."""
+    """Drop Lightning's advertising tip, its pytree ``LeafSpec`` FutureWarning, its
+    warning about ``args`` beside ``sys.argv`` (we pass the resolved argv) and the
+    jsonargparse 4.49 deprecations that LightningCLI 2.6 triggers (not ours to fix)."""
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropTips())
     warnings.filterwarnings("ignore", message=".*LeafSpec.*", category=FutureWarning)
     warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
     warnings.filterwarnings("ignore", message=".*The dirpath has changed.*")
+    os.environ.setdefault("JSONARGPARSE_DEPRECATION_WARNINGS", "off")
+
+
+class HNNArgumentParser(LightningArgumentParser):
+    """Usage lines name the program as it was run (``hnn-pl`` or ``python -m hnn_pl``),
+    also in the parsers that ``--model.help X`` builds, instead of ``__main__.py``."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        if not args:
+            kwargs.setdefault("prog", program_name())
+        super().__init__(*args, **kwargs)
 
 
 class HNNCLI(LightningCLI):
@@ -46,4 +72,5 @@ def cli_main(args: ArgsType = None, run: bool = True) -> HNNCLI:
         args=args,
         run=run,
         save_config_kwargs={"overwrite": True},
+        parser_class=HNNArgumentParser,
     )

@@ -1,18 +1,32 @@
-"""Finding configs: a path, or a bare name looked up in the bundled ``configs/``.
+"""Finding configs: a path, or a bare name looked up in the bundled configs.
+
+The bundled configs are the repository's top-level ``configs/``, which the wheel ships
+as the package ``hnn_pl.configs`` (``package-dir`` in pyproject.toml), so the same
+lookup works in a checkout (editable install) and in an installed wheel.
 
 Kept free of heavy imports so ``python -m hnn_pl --help`` is instant.
 """
 
 from __future__ import annotations
 
+from importlib.resources import files
 from pathlib import Path
 
-#: the bundled configs (the repository's top-level ``configs/``)
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+def config_dir() -> Path:
+    """The directory of the bundled configs (a real directory: wheels install unzipped)."""
+    try:
+        return Path(str(files("hnn_pl.configs")))
+    except ModuleNotFoundError:  # a source tree put on sys.path by hand, not installed
+        return Path(__file__).resolve().parent.parent / "configs"
+
+
+#: the bundled configs
+CONFIG_DIR = config_dir()
 
 
 def resolve_config(name: str) -> str:
-    """A config path as given if it exists, else ``configs/<name>[.yaml]``.
+    """A config path as given if it exists, else ``<bundled configs>/<name>[.yaml]``.
 
     Raises:
         FileNotFoundError: neither exists; the message lists the bundled configs.

@@ -50,11 +50,83 @@ def test_bare_config_names_resolve_to_the_bundled_dir(tmp_path, monkeypatch):
         resolve_config("nonexistent.yaml")
 
 
+def test_bundled_configs_are_the_package_hnn_pl_configs():
+    from importlib.resources import files
+
+    assert CONFIG_DIR == Path(str(files("hnn_pl.configs")))
+    assert CONFIG_DIR.samefile(Path(__file__).resolve().parent.parent / "configs")
+    assert "spring.yaml" in bundled_configs() and "__init__.py" not in bundled_configs()
+
+
 def test_top_level_help_lists_commands_and_configs():
     out = subprocess.run(
         [sys.executable, "-m", "hnn_pl", "--help"], capture_output=True, text=True, check=True
     ).stdout
+    assert out.startswith("usage: python -m hnn_pl <command>")
     assert "fit" in out and "spring.yaml" in out
+    # instant: neither Lightning nor torch is imported for it
+    code = "import sys; from hnn_pl.__main__ import main; main(['--help']); "
+    code += "assert not {'torch', 'lightning'} & set(sys.modules), 'heavy imports'"
+    subprocess.run([sys.executable, "-c", code], capture_output=True, check=True)
+
+
+def test_version_is_defined_once():
+    from importlib.metadata import version
+
+    import hnn_pl
+
+    assert version("hnn_pl") == hnn_pl.__version__
+    out = subprocess.run(
+        [sys.executable, "-m", "hnn_pl", "--version"], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.split() == ["hnn_pl", hnn_pl.__version__]
+
+
+def test_short_class_names_fit(tmp_path):
+    """``--model HNN --data SimulatedData --data.system MassSpring``: no import paths."""
+    from hnn_pl import HNN, SimulatedData
+    from hnn_pl.systems import MassSpring
+
+    cli = cli_main(
+        ["fit", "--model", "HNN", "--data", "SimulatedData", "--data.system", "MassSpring"]
+        + ["--data.n_trajectories=4", "--trainer.max_steps=2", "--trainer.logger=false"]
+        + ["--trainer.enable_model_summary=false", f"--trainer.default_root_dir={tmp_path}"]
+        + ["--trainer.enable_progress_bar=false", f"--data.cache_dir={tmp_path / 'cache'}"]
+        + ["--data.full_batch_steps=2"]
+    )
+    assert type(cli.model) is HNN and type(cli.datamodule) is SimulatedData
+    assert type(cli.datamodule.system) is MassSpring
+    assert cli.model.hparams.input_dim == 2 and cli.trainer.global_step == 2
+
+
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["--model.help", "HNN"], "--model.hidden_dim"),
+        (["--model.help", "Baseline"], "--model.hidden_dim"),
+        (["--data.help", "SimulatedData"], "--data.n_trajectories"),
+        (["--data", "SimulatedData", "--data.system.help", "TwoBody"], "orbit_noise"),
+    ],
+)
+def test_class_help_by_short_name(args, option, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["/x/hnn_pl/__main__.py"])
+    with pytest.raises(SystemExit) as exit_:
+        cli_main(["fit", *args])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: python -m hnn_pl") and option in out, out
+
+
+@pytest.mark.parametrize(
+    "argv0, prog",
+    [("/x/hnn_pl/__main__.py", "python -m hnn_pl"), ("/venv/bin/hnn-pl", "hnn-pl")],
+)
+def test_usage_names_the_program(argv0, prog, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", [argv0])
+    with pytest.raises(SystemExit):
+        cli_main(["fit", "--help"])
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: {prog} [options] fit") and "__main__" not in out, out
 
 
 @pytest.mark.parametrize("config", CONFIGS)
@@ -64,8 +136,8 @@ def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
     assert trainer.global_step == 4
     log_dir = trainer.logger.log_dir
     assert Path(log_dir).name.startswith("version_")
-    ckpts = list(Path(log_dir, "checkpoints").glob("*.ckpt"))
-    assert len(ckpts) == 1
+    best = Path(trainer.checkpoint_callback.best_model_path)
+    assert best.is_file() and best.parent == Path(log_dir, "checkpoints")
     tags = _tags(log_dir)
     expected = {"train/loss", "val/loss", "rollout/energy_mse", "rollout/state_mse"}
     if "baseline" not in config:
