@@ -24,6 +24,11 @@ _LAZY = {
     "AutoencoderDynamicsModel": "hnn_pl.models",
     "PixelPendulumData": "hnn_pl.data.pixel",
     "PixelRolloutCallback": "hnn_pl.callbacks",
+    "RolloutWriter": "hnn_pl.callbacks",
+    "rollout": "hnn_pl.rollouts",
+    "Protocol": "hnn_pl.protocols",
+    "TASKS": "hnn_pl.tasks",
+    "HamiltonianSystem": "hnn_pl.systems",
     "cli_main": "hnn_pl.cli",
 }
 

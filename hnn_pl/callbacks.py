@@ -1,122 +1,110 @@
-"""The rollout callback: long ODE rollouts of the learned field, logged to TensorBoard."""
+"""Callbacks: thin schedulers around the rollout engine (:mod:`hnn_pl.rollouts`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+import warnings
+from pathlib import Path
+from typing import Any
 
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
+from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.loggers import TensorBoardLogger
-from torch import Tensor
 
-from hnn_pl import rollout as R
+from hnn_pl import rollouts, tasks
+from hnn_pl.protocols import Protocol
 
-#: at most this many training inputs estimate the spread of ``H_θ``
-_SCALE_ROWS = 4096
+
+def task_protocol(task: str, protocol: str, overrides: dict[str, Any] | None) -> Protocol:
+    """``tasks.get(task).protocol(protocol)`` with ``overrides``, checked now
+    (``ValueError`` on an unknown task, protocol or field, or a bad value)."""
+    try:
+        p = tasks.get(task).protocol(protocol)
+    except KeyError as e:
+        raise ValueError(e.args[0]) from None
+    if not isinstance(p, Protocol):
+        raise ValueError(
+            f"the {protocol!r} protocol of task {task!r} is scipy's reference procedure "
+            "(hnn_pl.evaluate.evaluate_reference), not a rollout protocol; use 'clean'"
+        )
+    try:
+        return p.replace(**(overrides or {}))
+    except TypeError as e:
+        raise ValueError(f"overrides {overrides}: {e}") from None
 
 
 class RolloutCallback(Callback):
-    """Integrate the model from the held-out trajectories' starts and score it.
+    """Roll the model out from the held-out starts under a task's protocol and log it.
 
-    Every ``every_n_epochs`` training epochs, at the end of ``fit`` and in ``test``
-    (rank zero only), all held-out starts are integrated in one batch with
-    :func:`hnn_pl.odeint` and compared with the truth the DataModule provides
-    (:meth:`~hnn_pl.data.base.TrajectoryDataModule.rollout_target`). Logged:
-
-    - ``rollout/energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²``, ``E`` the
-      system's energy;
-    - ``rollout/state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
-    - ``rollout/conserved_drift`` (models with ``hamiltonian``):
-      ``mean_b max_t |H_θ(y_t) − H_θ(y_0)| / (|H_θ(y_0)| + scale)`` with ``scale``
-      the standard deviation of ``H_θ`` over (up to 4096) training inputs;
-    - images ``rollout/phase_portrait`` and ``rollout/energy`` (energy and ``H_θ``
-      over time), when ``log_images`` and the logger is TensorBoard.
+    Every ``every_n_epochs`` epochs and at the end of ``fit`` (only with a logger:
+    nothing is computed that is not recorded), and in ``test``, rank zero:
+    :func:`hnn_pl.rollouts.evaluate` on all held-out starts in one batch, logged as
+    ``rollout/<metric>`` (``energy_mse`` = ``mean_{t,b} (E(y_true) − E(y_pred))²``,
+    ``state_mse``, ``conserved_drift`` (HNN); pixel: ``pixel_mse``, ``latent_mse``,
+    ``probe_mse``). With ``log_images`` and TensorBoard: ``rollout/phase_portrait``,
+    ``rollout/energy``, pixel ``rollout/frames``.
 
     Args:
-        every_n_epochs: period during training; ``0`` only at the end of fit.
-        t_end: horizon; ``None`` uses the held-out trajectories' own times.
-        n_points: output times on ``[t₀, t_end]``.
-        method: integrator (see :data:`hnn_pl.integrate.METHODS`).
-        rtol, atol: tolerances of adaptive methods (and implicit iterations).
-        step_size: step of fixed-step methods (``None``: one step per output).
-        dtype: ``"float64"`` (default) integrates a float64 copy of the field, so
-            the integrator's own error stays far below the model's; ``"model"``
-            integrates in the model's dtype.
-        max_trajectories: use only the first this many starts (``None``: all).
+        task: a name in :data:`hnn_pl.tasks.TASKS`.
+        protocol: ``"clean"`` or ``"reference"`` (pixel only; the state tasks'
+            reference is scipy's procedure, run by ``reproduce``).
+        every_n_epochs: period during training; ``0``: only at the end of fit.
         log_images: draw the figures.
+        overrides: protocol fields to change, e.g. ``{method: rk4, step_size: 0.05}``.
     """
 
     def __init__(
         self,
+        task: str = "spring",
+        protocol: str = "clean",
         every_n_epochs: int = 100,
-        t_end: float | None = 20.0,
-        n_points: int = 200,
-        method: str = "dopri5",
-        rtol: float = 1e-9,
-        atol: float = 1e-9,
-        step_size: float | None = None,
-        dtype: str = "float64",
-        max_trajectories: int | None = None,
         log_images: bool = True,
+        overrides: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
+        if every_n_epochs < 0:
+            raise ValueError(f"every_n_epochs must be >= 0, got {every_n_epochs}")
+        self.protocol = task_protocol(task, protocol, overrides)
         self.every_n_epochs = every_n_epochs
-        self.t_end = t_end
-        self.n_points = n_points
-        self.method = method
-        self.solver_kwargs = {"rtol": rtol, "atol": atol, "step_size": step_size}
-        self.dtype = None if dtype == "model" else getattr(torch, dtype)
-        self.max_trajectories = max_trajectories
         self.log_images = log_images
         self._last_logged_step = -1
 
-    def run(self, trainer: Trainer, pl_module: LightningModule) -> tuple[dict, R.Rollout]:
-        """Roll out and compute the metrics; returns ``({tag: value}, rollout)``."""
-        dm = trainer.datamodule
-        t, y_true = dm.rollout_target(self.t_end, self.n_points)
-        if self.max_trajectories is not None:
-            y_true = y_true[:, : self.max_trajectories]
-        y_true = y_true.to(pl_module.device)
-        was_training = pl_module.training
-        pl_module.eval()
-        try:
-            r = R.rollout(
-                pl_module.field,
-                t.to(pl_module.device),
-                y_true,
-                dm.energy,
-                method=self.method,
-                dtype=self.dtype,
-                scale_inputs=dm.x_train[:_SCALE_ROWS].to(pl_module.device),
-                **self.solver_kwargs,
-            )
-            metrics = {
-                "rollout/energy_mse": R.energy_mse(r),
-                "rollout/state_mse": R.state_mse(r),
-            }
-            if r.h_pred is not None:
-                metrics["rollout/conserved_drift"] = R.conserved_drift(r)
-        finally:
-            pl_module.train(was_training)
-        return {k: float(v) for k, v in metrics.items()}, r
+    def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
+        """Record what tells runs apart in every logger's hyperparameters: the model's
+        class, the system with its parameters, the rollout protocol."""
+        cls = type(pl_module)
+        dm_hparams = getattr(trainer.datamodule, "hparams", {})
+        run = {
+            "model_class": f"{cls.__module__}.{cls.__qualname__}",
+            "system": dm_hparams.get("system", type(trainer.datamodule).__name__),
+            "rollout_protocol": vars(self.protocol),
+        }
+        for logger in trainer.loggers:
+            logger.log_hyperparams(run)
 
-    def _images(self, trainer: Trainer, r: R.Rollout) -> None:
+    def _images(self, trainer: Trainer, r: rollouts.Rollout) -> None:
         if not (self.log_images and isinstance(trainer.logger, TensorBoardLogger)):
             return
         from hnn_pl import plotting
 
-        writer = trainer.logger.experiment
-        step = trainer.global_step
-        writer.add_figure("rollout/phase_portrait", plotting.phase_portrait(r), step)
-        writer.add_figure("rollout/energy", plotting.energy_over_time(r), step)
+        writer, step = trainer.logger.experiment, trainer.global_step
+        for tag, fig in plotting.figures(r).items():
+            writer.add_figure(tag, fig, step)
+        if r.is_pixel:
+            image = plotting.frames_image(r)
+            writer.add_image("rollout/frames", image, step, dataformats="CHW")
 
     def _log_during_fit(self, trainer: Trainer, pl_module: LightningModule) -> None:
-        if not trainer.is_global_zero or trainer.global_step == self._last_logged_step:
+        if not (trainer.is_global_zero and trainer.loggers):
+            return
+        if trainer.global_step == self._last_logged_step:
             return
         self._last_logged_step = trainer.global_step
-        metrics, r = self.run(trainer, pl_module)
+        metrics, r = rollouts.evaluate(pl_module, trainer.datamodule, self.protocol)
+        tagged = {f"rollout/{k}": v for k, v in metrics.items()}
         for logger in trainer.loggers:
-            logger.log_metrics(metrics, step=trainer.global_step)
+            logger.log_metrics(tagged, step=trainer.global_step)
         self._images(trainer, r)
 
     def on_train_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
@@ -129,229 +117,191 @@ class RolloutCallback(Callback):
     def on_test_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if not trainer.is_global_zero:
             return
-        metrics, r = self.run(trainer, pl_module)
-        for tag, value in metrics.items():
-            pl_module.log(tag, value, rank_zero_only=True)
+        metrics, r = rollouts.evaluate(pl_module, trainer.datamodule, self.protocol)
+        for k, v in metrics.items():
+            pl_module.log(f"rollout/{k}", v, rank_zero_only=True)
         self._images(trainer, r)
 
 
-# --------------------------------------------------------------------------- pixel pendulum
-
-
-@dataclass
-class PixelRollout(R.Rollout):
-    """A latent rollout of a pixel model, decoded and probed.
-
-    The inherited fields hold the *probe's* view, so the state-task plots and
-    metrics apply: ``t (T,)`` physical times ``k·dt``; ``y_true (T, B, 2)`` the
-    true ``(q, p) = (θ, c·θ̇)``; ``y_pred`` the linear probe of the integrated
-    latents; ``e_true, e_pred (T, B)`` the energy ``α(1 − cos q) + p²`` of each;
-    ``h_pred (T, B)`` the learned ``H_θ`` along the latent rollout (HNN only) and
-    ``h_scale`` its standard deviation over the encoded training inputs.
-
-    Attributes:
-        z_true: ``(T, B, L)`` the encodings of the true frame pairs.
-        z_pred: ``(T, B, L)`` the integrated latents, from ``z_true[0]``.
-        x_true: ``(T, B, D)`` the true frame pairs.
-        x_pred: ``(T, B, D)`` the decoded ``z_pred``.
-        probe: ``(L + 1, 2)`` least-squares weights, ``(q, p) ≈ [z, 1] @ probe``.
-        probe_mse: the probe's mean squared residual on the training inputs.
-    """
-
-    z_true: Tensor | None = None
-    z_pred: Tensor | None = None
-    x_true: Tensor | None = None
-    x_pred: Tensor | None = None
-    probe: Tensor | None = None
-    probe_mse: Tensor | float = 0.0
-
-
-def fit_probe(z: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
-    """Affine least squares ``target ≈ [z, 1] @ W`` in float64.
-
-    Args:
-        z: ``(N, L)`` latents.
-        target: ``(N, K)``.
-
-    Returns:
-        ``W (L + 1, K)`` and the mean squared residual.
-    """
-    a = torch.cat([z.double(), z.new_ones(len(z), 1, dtype=torch.float64)], -1)
-    w = torch.linalg.lstsq(a, target.double()).solution
-    return w, ((a @ w - target.double()) ** 2).mean()
-
-
-def apply_probe(w: Tensor, z: Tensor) -> Tensor:
-    """``[z, 1] @ W``: ``(..., L) -> (..., K)`` in float64."""
-    return z.double() @ w[:-1] + w[-1]
-
-
 class PixelRolloutCallback(RolloutCallback):
-    """Latent rollouts of a pixel model (:class:`~hnn_pl.models.AutoencoderHNN` or
-    :class:`~hnn_pl.models.AutoencoderBaseline`) on
-    :class:`~hnn_pl.data.pixel.PixelPendulumData`, scored in pixels and energy.
+    """:class:`RolloutCallback` with the pixel task's protocol (200-frame latent
+    rollouts of every held-out trajectory, decoded and probed) and a period of 25
+    epochs. Arguments as :class:`RolloutCallback`."""
 
-    Scheduled as :class:`RolloutCallback` (every ``every_n_epochs`` training epochs,
-    at the end of ``fit``, in ``test``; rank zero only; during ``fit`` only when the
-    trainer has a logger). Each evaluation:
+    def __init__(
+        self,
+        task: str = "pixel",
+        protocol: str = "clean",
+        every_n_epochs: int = 25,
+        log_images: bool = True,
+        overrides: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__(task, protocol, every_n_epochs, log_images, overrides)
 
-    1. encodes up to ``probe_rows`` training inputs and fits the linear probe
-       ``z ↦ (θ, c·θ̇)`` by least squares (affine, float64) on their true states;
-    2. encodes the first frame pair of every held-out trajectory and integrates the
-       latent field over ``n_frames`` frames (``t = k·frame_dt`` in the model's
-       time unit, ``k = 0 … n_frames − 1``; a float64 copy of the field by default);
-    3. decodes the latents and probes them.
 
-    Logged: ``rollout/energy_mse`` ``mean_{t,b} (E(y_true) − E(probe(z)))²`` with
-    ``E = α(1 − cos q) + p²`` (α = 1.875 by default, the DataModule's
-    ``energy_coef``); ``rollout/state_mse`` (probe vs true ``(q, p)``);
-    ``rollout/pixel_mse`` (decoded vs true frame pairs); ``rollout/latent_mse``
-    (integrated vs encoded true pairs); ``rollout/probe_mse`` (the probe's residual
-    on the training set, how linear the encoding is); for an HNN
-    ``rollout/conserved_drift`` as :func:`hnn_pl.rollout.conserved_drift`, the
-    scale being the std of ``H_θ`` over the encoded training inputs. Images (with a
-    TensorBoard logger and ``log_images``): ``rollout/frames`` (true frames above
-    decoded ones, first trajectory, ``n_strip`` frames evenly spaced; the second
-    frame of each pair), ``rollout/phase_portrait`` (the latent plane: encoded
-    truth solid, rollout dashed) and ``rollout/energy`` (energy over time, and
-    ``H_θ``).
+class RolloutWriter(BasePredictionWriter):
+    """``predict`` that answers: rollouts written to a file beside the run.
 
-    Each model is evaluated with its own encoder and its own probe (the reference's
-    early evaluation encoded with the HNN's encoder even for the baseline).
+    At the end of ``predict`` (rank zero) the model is rolled out under the task's
+    protocol from the held-out starts, or from ``starts`` (a ``torch.save``-d
+    ``(B, D)`` tensor; pixel: frame pairs), and ``torch.save``-d as a dict:
+    held-out: ``t (T,)``, ``y_true``/``y_pred (T, B, D)``, ``energy_true``/
+    ``energy_pred (T, B)``, ``h_pred`` (HNN), ``metrics``; pixel also
+    ``frames_true``/``frames_pred``, ``z_pred`` (``y`` are the probe's ``(q, p)``).
+    Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel). Always
+    ``dydt``: the ``predict_step`` outputs. The file goes to the checkpoint's run
+    directory (``…/version_N/``), else the logger's, else the working directory,
+    and its path is printed.
 
     Args:
-        every_n_epochs: period during training; ``0`` only at the end of fit.
-        n_frames: rollout length in frames (200).
-        method, rtol, atol, step_size, dtype, max_trajectories, log_images: as
-            :class:`RolloutCallback`.
-        probe_rows: training inputs the probe and the ``H_θ`` scale use (``None``:
-            all).
-        n_strip: frames per row of ``rollout/frames``.
+        task, protocol, overrides: the protocol, as :class:`RolloutCallback`.
+        starts: a file of starts, or ``None`` for the held-out ones.
+        filename: the file's name.
     """
 
     def __init__(
         self,
-        every_n_epochs: int = 25,
-        n_frames: int = 200,
-        method: str = "dopri5",
-        rtol: float = 1e-9,
-        atol: float = 1e-9,
-        step_size: float | None = None,
-        dtype: str = "float64",
-        max_trajectories: int | None = None,
-        log_images: bool = True,
-        probe_rows: int | None = None,
-        n_strip: int = 10,
+        task: str = "spring",
+        protocol: str = "clean",
+        overrides: dict[str, Any] | None = None,
+        starts: str | None = None,
+        filename: str = "rollouts.pt",
     ) -> None:
-        super().__init__(
-            every_n_epochs=every_n_epochs,
-            t_end=None,
-            n_points=n_frames,
-            method=method,
-            rtol=rtol,
-            atol=atol,
-            step_size=step_size,
-            dtype=dtype,
-            max_trajectories=max_trajectories,
-            log_images=log_images,
-        )
-        self.n_frames = n_frames
-        self.probe_rows = probe_rows
-        self.n_strip = n_strip
+        super().__init__(write_interval="epoch")
+        warnings.filterwarnings("ignore", message=".*infer the batch indices.*")
+        self.protocol = task_protocol(task, protocol, overrides)
+        self.starts = starts
+        self.filename = filename
+        self.path: Path | None = None
 
-    def run(self, trainer: Trainer, pl_module: LightningModule) -> tuple[dict, PixelRollout]:
-        """Probe, roll out, decode and score; returns ``({tag: value}, rollout)``."""
+    def _directory(self, trainer: Trainer) -> Path:
+        if trainer.ckpt_path:
+            ckpt_dir = Path(trainer.ckpt_path).parent
+            return ckpt_dir.parent if ckpt_dir.name == "checkpoints" else ckpt_dir
+        if trainer.logger is not None and trainer.log_dir is not None:
+            return Path(trainer.log_dir)
+        return Path.cwd()
+
+    def _given_starts(self, pl_module: LightningModule, dm: Any) -> dict[str, Any]:
+        y0 = torch.load(self.starts, weights_only=True)
+        p = self.protocol
+        if rollouts.is_pixel_model(pl_module):
+            t = torch.arange(p.n_points or 200, dtype=torch.float64) * pl_module.frame_dt
+            energy = None
+        else:
+            t = torch.linspace(0.0, p.t_end or 1.0, p.n_points or 100, dtype=torch.float64)
+            energy = dm.energy
+        out = rollouts.rollout(pl_module, y0, t, dtype=p.dtype, energy=energy, **p.solver_kwargs())
+        return out.as_dict()
+
+    def write_on_epoch_end(
+        self,
+        trainer: Trainer,
+        pl_module: LightningModule,
+        predictions: Any,
+        batch_indices: Any,
+    ) -> None:
+        if not trainer.is_global_zero:
+            return
         dm = trainer.datamodule
-        device = pl_module.device
-        t, y_true, x_true = dm.rollout_truth(n_points=self.n_frames)
-        if self.max_trajectories is not None:
-            y_true, x_true = y_true[:, : self.max_trajectories], x_true[:, : self.max_trajectories]
-        rows = slice(None) if self.probe_rows is None else slice(self.probe_rows)
+        if self.starts is not None:
+            payload = self._given_starts(pl_module, dm)
+        else:
+            metrics, r = rollouts.evaluate(pl_module, dm, self.protocol)
+            payload = {
+                "t": r.t,
+                "y_true": r.y_true,
+                "y_pred": r.y_pred,
+                "energy_true": r.e_true,
+                "energy_pred": r.e_pred,
+                "h_pred": r.h_pred,
+                "metrics": metrics,
+                "frames_true": r.x_true,
+                "frames_pred": r.x_pred,
+                "z_pred": r.z_pred,
+            }
+        flat = predictions[0] if predictions and isinstance(predictions[0], list) else predictions
+        if flat:
+            payload["dydt"] = torch.cat([p.detach().cpu() for p in flat])
+        payload = {k: v.cpu() if torch.is_tensor(v) else v for k, v in payload.items()}
+        payload = {k: v for k, v in payload.items() if v is not None}
+        directory = self._directory(trainer)
+        directory.mkdir(parents=True, exist_ok=True)
+        self.path = directory / self.filename
+        torch.save(payload, self.path)
+        shape = tuple(payload.get("y_pred", payload.get("y")).shape)
+        print(f"wrote rollouts {shape} (T, B, D) to {self.path}", flush=True)
+
+
+class TimeToAccuracy(Callback):
+    """Training time until the energy MSE on the paper's protocol reaches a target.
+
+    Every ``every_n_steps`` optimiser steps (rank zero) the model is scored on its
+    task's reference protocol (:func:`hnn_pl.evaluate.score_reference`; by default
+    batched float64 ``dopri5`` at the protocol's ≈1e-6 accuracy; truth prepared once
+    in ``setup``). Logged: ``tta/energy_mse``; once ≤ ``target``, ``tta/seconds``
+    (training time since ``setup``, scoring excluded) and ``tta/step``; ``stop``
+    ends the fit there. Afterwards :attr:`reached` is ``{"step", "seconds",
+    "wall_seconds", "energy_mse"}`` or ``None``; :attr:`history` every
+    ``(step, seconds, energy_mse)``.
+
+    Args:
+        task: a state task of :data:`hnn_pl.tasks.TASKS`.
+        target: the energy MSE to reach (``None``: the published HNN value).
+        every_n_steps: scoring period in optimiser steps.
+        stop: end the fit when the target is reached.
+        solver: ``"torch"`` or ``"scipy"`` (the published RK45; slower).
+    """
+
+    def __init__(
+        self,
+        task: str = "spring",
+        target: float | None = None,
+        every_n_steps: int = 50,
+        stop: bool = False,
+        solver: str = "torch",
+    ) -> None:
+        super().__init__()
+        self.task = tasks.get(task)
+        if self.task.kind != "state":
+            raise ValueError(f"TimeToAccuracy scores state tasks; {task!r} is {self.task.kind}")
+        if every_n_steps < 1:
+            raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
+        self.target = self.task.published["hnn"].energy_mse if target is None else float(target)
+        self.every_n_steps, self.stop, self.solver = every_n_steps, stop, solver
+        self.reached: dict[str, float] | None = None
+        self.history: list[tuple[int, float, float]] = []
+
+    def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
+        from hnn_pl.evaluate import reference_case
+
+        trainer.datamodule.setup(stage)
+        self._case = reference_case(trainer.datamodule, self.task.reference)
+        self._next = self.every_n_steps
+        self._start = time.perf_counter()
+        self._scoring = 0.0
+
+    def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *args) -> None:
+        step = trainer.global_step
+        if step < self._next or not trainer.is_global_zero:
+            return
+        from hnn_pl.evaluate import score_reference
+
+        self._next = step + self.every_n_steps - step % self.every_n_steps
+        t0 = time.perf_counter()
         was_training = pl_module.training
         pl_module.eval()
-        try:
-            with torch.no_grad():
-                z_train = pl_module.encode(dm.x_train[rows].to(device))
-                probe, probe_mse = fit_probe(z_train, dm.canonical(dm.y_train[rows]).to(device))
-                x_true = x_true.to(device)
-                z_true = pl_module.encode(x_true)
-                frame_dt = float(pl_module.hparams.get("frame_dt", 1.0))
-                t_model = torch.arange(len(t), dtype=torch.float64, device=device) * frame_dt
-                z_pred, field = R.integrate_field(
-                    pl_module.field,
-                    z_true[0],
-                    t_model,
-                    method=self.method,
-                    dtype=self.dtype,
-                    **self.solver_kwargs,
-                )
-                x_pred = pl_module.decode(z_pred.to(z_true.dtype))
-                q_true = dm.canonical(y_true.to(device)).double()
-                q_pred = apply_probe(probe, z_pred)
-                r = PixelRollout(
-                    t=t.double().cpu(),
-                    y_true=q_true,
-                    y_pred=q_pred,
-                    e_true=dm.system.energy(q_true),
-                    e_pred=dm.system.energy(q_pred),
-                    z_true=z_true.to(z_pred.dtype),
-                    z_pred=z_pred,
-                    x_true=x_true,
-                    x_pred=x_pred,
-                    probe=probe,
-                    probe_mse=probe_mse,
-                )
-                metrics = {
-                    "rollout/energy_mse": R.energy_mse(r),
-                    "rollout/state_mse": R.state_mse(r),
-                    "rollout/pixel_mse": ((x_pred - x_true) ** 2).mean(),
-                    "rollout/latent_mse": ((z_pred - r.z_true) ** 2).mean(),
-                    "rollout/probe_mse": probe_mse,
-                }
-                if hasattr(field, "hamiltonian"):
-                    r.h_pred = field.hamiltonian(z_pred.flatten(0, 1)).reshape(z_pred.shape[:2])
-                    r.h_scale = field.hamiltonian(z_train.to(z_pred.dtype)).std()
-                    metrics["rollout/conserved_drift"] = R.conserved_drift(r)
-        finally:
-            pl_module.train(was_training)
-        return {k: float(v) for k, v in metrics.items()}, r
-
-    def frames_image(self, r: PixelRollout, trajectory: int = 0) -> Tensor:
-        """True (top) and decoded (bottom) frames of one rollout: ``(1, H, W)`` uint8.
-
-        ``n_strip`` frames evenly spaced over the rollout, the second frame of each
-        pair, mapped from ``[0, max of the true frames]`` to ``[0, 255]``.
-        """
-        from hnn_pl.render import frame_strip
-
-        n = r.x_true.shape[0]
-        side = int(round((r.x_true.shape[-1] // 2) ** 0.5))
-        idx = torch.linspace(0, n - 1, min(self.n_strip, n)).round().long()
-
-        def second(x: Tensor) -> Tensor:
-            return x[idx, trajectory, side * side :].reshape(-1, side, side).float().cpu()
-
-        true, pred = second(r.x_true), second(r.x_pred)
-        vmax = float(true.max()) or 1.0
-        top, bottom = frame_strip(true, vmax=vmax), frame_strip(pred, vmax=vmax)
-        gap = torch.full((2, top.shape[1]), 128, dtype=torch.uint8)
-        return torch.cat([top, gap, bottom])[None]
-
-    def _images(self, trainer: Trainer, r: PixelRollout) -> None:
-        if not (self.log_images and isinstance(trainer.logger, TensorBoardLogger)):
-            return
-        from hnn_pl import plotting
-
-        writer = trainer.logger.experiment
-        step = trainer.global_step
-        writer.add_image("rollout/frames", self.frames_image(r), step, dataformats="CHW")
-        latent = R.Rollout(r.t, r.z_true, r.z_pred, r.e_true, r.e_pred)
-        fig = plotting.phase_portrait(latent)
-        ax = fig.axes[0]
-        ax.set(xlabel="z_q", ylabel="z_p", title="latent: encoded truth (solid), rollout (dashed)")
-        writer.add_figure("rollout/phase_portrait", fig, step)
-        writer.add_figure("rollout/energy", plotting.energy_over_time(r), step)
-
-    def _log_during_fit(self, trainer: Trainer, pl_module: LightningModule) -> None:
-        if trainer.loggers:  # nothing would record the evaluation
-            super()._log_during_fit(trainer, pl_module)
+        energy = score_reference(pl_module, self._case, self.solver)["energy_mse"]
+        pl_module.train(was_training)
+        seconds = t0 - self._start - self._scoring
+        self._scoring += time.perf_counter() - t0
+        self.history.append((step, seconds, energy))
+        metrics = {"tta/energy_mse": energy}
+        if self.reached is None and energy <= self.target:
+            wall = t0 - self._start
+            self.reached = {"step": step, "seconds": seconds, "wall_seconds": wall}
+            self.reached["energy_mse"] = energy
+            metrics.update({"tta/seconds": seconds, "tta/step": float(step)})
+            trainer.should_stop = trainer.should_stop or self.stop
+        for logger in trainer.loggers:
+            logger.log_metrics(metrics, step=step)

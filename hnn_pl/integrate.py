@@ -22,9 +22,7 @@ Fixed-step methods take one step per output interval, or cut each interval into
 ``ceil(|Δt| / step_size)`` equal steps so that outputs land exactly on ``t``; a ratio
 within float32 rounding of an integer counts as that integer, so a grid built in
 float32 (``linspace(0, 20, 201)``, ``step_size=0.1``) takes one step per interval.
-``dopri5`` controls the error of every trajectory separately: each row has its own
-time and step size, finished rows leave the active set, and outputs come from the
-4th-order Dormand-Prince dense output, so steps are not clipped to the output grid.
+``dopri5`` controls the error of every trajectory separately (see :class:`Dopri5`).
 
 Backward integration (decreasing ``t``) substitutes ``s = -t``, integrating
 ``dy/ds = -func(-s, y)`` forward. Gradients flow to ``y0`` and to parameters used by
@@ -63,21 +61,10 @@ _PROBE_ROWS = 64
 
 
 class _Solver:
-    """Base of all methods: option handling and the common ``integrate`` signature.
+    """Base of all methods (arguments as :func:`odeint`; unknown options raise).
 
-    Args:
-        rtol: relative tolerance (adaptive error control, implicit iterations).
-        atol: absolute tolerance.
-        step_size: largest step of fixed-step methods, or ``None``.
-        options: method-specific options; keys must be in ``defaults``.
-
-    Attributes:
-        order: order of accuracy (global error ``O(h^order)``).
-        defaults: the options and their default values.
-        sign: ``-1.0`` while integrating backward in time (``s = -t``), for messages.
-
-    Raises:
-        ValueError: on an unknown option.
+    ``order``: global error ``O(h^order)``; ``defaults``: the options and their
+    defaults; ``sign``: ``-1.0`` while integrating backward (``s = -t``), for messages.
     """
 
     order: int = 0
@@ -104,19 +91,8 @@ class _FixedStep(_Solver):
     """A fixed-step method: subclasses implement :meth:`step`."""
 
     def step(self, func: Field, t: Tensor, y: Tensor, h: float, cache: Any) -> tuple[Tensor, Any]:
-        """One step ``y(t) -> y(t + h)``.
-
-        Args:
-            func: the field, ``(t, (B, D)) -> (B, D)``.
-            t: 0-d time of ``y``.
-            y: ``(B, D)``.
-            h: step size (positive).
-            cache: what ``_start`` or the previous step returned (e.g. an FSAL
-                evaluation).
-
-        Returns:
-            ``y(t + h)`` of shape ``(B, D)`` and the cache for the next step.
-        """
+        """One step ``y (B, D)`` at 0-d ``t`` -> ``(y(t + h), cache)``, ``h > 0``; ``cache``
+        is what ``_start`` or the previous step returned (e.g. an FSAL evaluation)."""
         raise NotImplementedError
 
     def _start(self, func: Field, t0: Tensor, y0: Tensor) -> Any:
@@ -169,12 +145,9 @@ class Leapfrog(_FixedStep):
     and ``ṗ`` are the first and second half of ``func``'s output. Symplectic and of
     order 2 only for a separable ``H = T(p) + V(q)`` (``q̇`` depends only on ``p``,
     ``ṗ`` only on ``q``); the last kick's evaluation at ``(q1, p½)`` is reused by the
-    next step. Before integrating, a probe perturbs ``q`` and ``p`` of up to 64 rows
-    and warns if ``q̇`` changes with ``q`` or ``ṗ`` with ``p`` (relative to the cross
-    terms) by more than 1e-6.
-
-    Options:
-        check_separable (bool): run the probe (default ``True``).
+    next step. Option ``check_separable`` (default ``True``): first probe up to 64 rows
+    and warn if ``q̇`` changes with ``q`` or ``ṗ`` with ``p`` by more than 1e-6 of the
+    cross terms.
     """
 
     order = 2
@@ -188,11 +161,10 @@ class Leapfrog(_FixedStep):
             coupling = _non_separability(func, t0, y0, f0)
             if not coupling <= _SEPARABILITY_TOL:
                 warnings.warn(
-                    "leapfrog assumes a separable H = T(p) + V(q) (dq/dt depending only on p, "
-                    f"dp/dt only on q), but this field is not separable (relative coupling "
-                    f"{coupling:.2e}): leapfrog is then neither symplectic nor second order. "
-                    "Use method='implicit_midpoint', or options={'check_separable': False} "
-                    "to skip this check.",
+                    "leapfrog assumes a separable H = T(p) + V(q), but this field couples q "
+                    f"and p (relative coupling {coupling:.2e}): it is then neither symplectic "
+                    "nor second order. Use method='implicit_midpoint', or "
+                    "options={'check_separable': False} to skip this check.",
                     UserWarning,
                     stacklevel=4,
                 )
@@ -208,11 +180,8 @@ class Leapfrog(_FixedStep):
 
 
 def _non_separability(func: Field, t0: Tensor, y0: Tensor, f0: Tensor) -> float:
-    """``(‖Δq q̇‖ + ‖Δp ṗ‖) / (‖Δq ṗ‖ + ‖Δp q̇‖)`` for relative perturbations of 1e-3.
-
-    ``Δq q̇`` is the change of ``q̇`` when ``q`` is perturbed, etc.; 0 for a separable
-    field. Evaluated on at most ``_PROBE_ROWS`` rows in one call of ``2 n`` rows.
-    """
+    """``(‖Δq q̇‖ + ‖Δp ṗ‖) / (‖Δq ṗ‖ + ‖Δp q̇‖)`` for relative perturbations of 1e-3
+    (``Δq q̇``: change of ``q̇`` when ``q`` is perturbed), in one call on ``2 n`` rows."""
     with torch.no_grad():
         y, f = y0[:_PROBE_ROWS].detach(), f0[:_PROBE_ROWS].detach()
         n, k = y.shape[0], y.shape[-1] // 2
@@ -240,14 +209,8 @@ class ImplicitMidpoint(_FixedStep):
     once ``|Δy1| = h |Δk| <= max(atol + rtol |y1|, 8 eps (1 + |y1|))`` elementwise
     (``y1`` of the predictor); converged rows are frozen, the iteration ends when
     all have converged. It contracts only for ``h L / 2 < 1`` (``L`` the field's
-    Lipschitz constant).
-
-    Options:
-        max_iters (int): iterations per step before giving up (default 50).
-
-    Raises:
-        RuntimeError: if a step does not converge (too large a step, or non-finite
-            values).
+    Lipschitz constant): a step that does not converge in option ``max_iters``
+    (default 50) iterations raises RuntimeError.
     """
 
     order = 2
@@ -337,13 +300,9 @@ class Dopri5(_Solver):
     Times and step sizes are kept in float64 whatever ``y0``'s dtype; no gradient
     flows through the step-size control.
 
-    Options:
-        max_steps (int): attempted steps per row before giving up (default 100000).
-        first_step (float | None): initial step for all rows instead of the heuristic.
-
-    Raises:
-        RuntimeError: on too many steps or a step-size underflow (e.g. a field that
-            returns NaN, a singularity, or ``rtol`` below the dtype's resolution).
+    Options: ``max_steps`` attempted steps per row (default 100000), ``first_step``
+    for all rows instead of the heuristic. RuntimeError on too many steps or a step-size
+    underflow (a field returning NaN, a singularity, ``rtol`` below the dtype's resolution).
     """
 
     order = 5
@@ -359,6 +318,7 @@ class Dopri5(_Solver):
         self._tables: dict[tuple, dict[str, Any]] = {}
 
     def _coefficients(self, dtype: torch.dtype, tdtype: torch.dtype, device) -> dict[str, Any]:
+        # cached per odeint call: inference-mode tensors must not reach a later autograd call
         key = (dtype, tdtype, device)
         if key not in self._tables:
 
@@ -378,18 +338,9 @@ class Dopri5(_Solver):
     def step(
         self, func: Field, t: Tensor, y: Tensor, f: Tensor, h: Tensor
     ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """One attempted step of every row.
-
-        Args:
-            func: the field.
-            t: ``(A,)`` times (float64).
-            y: ``(A, D)`` states at ``t``.
-            f: ``(A, D)`` = ``func(t, y)``.
-            h: ``(A,)`` step sizes (float64).
-
-        Returns:
-            ``y1 (A, D)``, ``f1 = func(t + h, y1)``, the error estimate ``(A, D)`` and the
-            dense-output midpoint ``y(t + h/2) (A, D)``.
+        """One attempted step of every row from ``t, h (A,)`` (float64), ``y (A, D)``
+        and ``f = func(t, y)``: ``y1``, ``f1 = func(t + h, y1)``, the error estimate and
+        the dense-output midpoint ``y(t + h/2)``, each ``(A, D)``.
         """
         coef = self._coefficients(y.dtype, t.dtype, y.device)
         tc = torch.addcmul(t[:, None], h[:, None], coef["c"]).to(y.dtype)
@@ -463,16 +414,7 @@ class Dopri5(_Solver):
         out = out.index_put((torch.cat(out_idx),), torch.cat(out_val))
         return out.reshape(t.shape[0], B, D)
 
-    def _fail(
-        self,
-        reason: str,
-        rows: Tensor,
-        idx: Tensor,
-        t: Tensor,
-        h: Tensor,
-        B: int,
-        nonfinite: Tensor,
-    ) -> None:
+    def _fail(self, reason, rows: Tensor, idx, t, h, B: int, nonfinite: Tensor) -> None:
         n = int(rows.sum())
         t_r, h_r = (self.sign * t[rows]).tolist(), h[rows].tolist()
         hint = (
@@ -535,30 +477,24 @@ def odeint(
     """Integrate ``dy/dt = func(t, y)`` from ``y(t[0]) = y0`` and return ``y(t)``.
 
     Args:
-        func: the field ``func(t, y)``, ``y (batch, dim) -> (batch, dim)``, rows
-            independent (solvers may pass a subset of rows). ``t`` is a tensor of
-            ``y``'s dtype that broadcasts against ``y``: 0-d for fixed-step methods,
-            ``(rows, 1)`` for ``dopri5``.
-        y0: initial states ``(batch, dim)``, or ``(dim,)``.
-        t: ``(T,)`` output times, strictly increasing or strictly decreasing; cast to
-            ``y0``'s dtype. ``t[0]`` is the time of ``y0``.
+        func: ``func(t, y)``, ``(batch, dim) -> (batch, dim)``, rows independent (solvers
+            may pass a subset); ``t`` has ``y``'s dtype and broadcasts against ``y``: 0-d
+            for fixed-step methods, ``(rows, 1)`` for ``dopri5``.
+        y0: initial states ``(batch, dim)`` or ``(dim,)``, at ``t[0]``.
+        t: ``(T,)`` strictly monotone output times, cast to ``y0``'s dtype.
         method: a key of :data:`METHODS`.
-        rtol: relative tolerance of ``dopri5`` and of the ``implicit_midpoint``
-            iteration.
-        atol: absolute tolerance of the same.
-        step_size: fixed-step methods only: each output interval is cut into
-            ``ceil(|Δt| / step_size)`` equal steps; ``None``: one step per interval.
+        rtol, atol: tolerances of ``dopri5`` and of the ``implicit_midpoint`` iteration.
+        step_size: fixed-step methods only (module docstring); ``None``: one step per
+            output interval.
         options: method-specific options (see each class in :data:`METHODS`).
 
     Returns:
-        ``(T, batch, dim)`` (``(T, dim)`` for ``y0`` of shape ``(dim,)``) in ``y0``'s
-        dtype and device, with ``out[0] == y0``.
+        ``(T, batch, dim)`` (``(T, dim)`` for 1-D ``y0``), ``y0``'s dtype and device,
+        ``out[0] == y0``.
 
     Raises:
-        ValueError: on an unknown method or option, a non-monotone ``t``, bad shapes,
-            or a ``step_size`` given to ``dopri5``.
-        RuntimeError: if an implicit step does not converge or ``dopri5`` cannot reach
-            the final time.
+        ValueError: bad method, option, shape or ``t``, or a ``step_size`` for ``dopri5``.
+        RuntimeError: an implicit step does not converge or ``dopri5`` gives up.
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; valid methods: {sorted(METHODS)}")
@@ -587,8 +523,6 @@ def odeint(
 
 
 def _reversed(func: Field) -> Field:
-    """The field of ``s = -t``: ``dy/ds = -func(-s, y)``."""
-
     def neg(s: Tensor, y: Tensor) -> Tensor:
         return -func(-s, y)
 
@@ -598,20 +532,11 @@ def _reversed(func: Field) -> Field:
 def scipy_fun(
     func: Field, shape: tuple[int, ...], dtype: torch.dtype = torch.float64
 ) -> Callable[[float, np.ndarray], np.ndarray]:
-    """Wrap a torch field for ``scipy.integrate.solve_ivp`` on a flattened batch.
+    """``fun(t: float, y_flat) -> dy_flat`` for ``scipy.integrate.solve_ivp``.
 
-    ``fun(t, y_flat)`` reshapes ``y_flat`` (``prod(shape)`` float64 values) to
-    ``shape`` (e.g. ``(batch, dim)``) in ``dtype``, evaluates ``func(t, y)`` under
-    ``torch.no_grad`` with ``t`` a 0-d tensor, and returns the flattened float64
-    result, so one ``solve_ivp`` call integrates the whole batch.
-
-    Args:
-        func: the field ``func(t, y)``.
-        shape: the shape ``func`` expects.
-        dtype: the dtype ``func`` is evaluated in.
-
-    Returns:
-        ``fun(t: float, y_flat: np.ndarray) -> np.ndarray``.
+    Reshapes ``y_flat`` (float64) to ``shape`` (e.g. ``(batch, dim)``) in ``dtype``,
+    evaluates ``func`` under ``torch.no_grad`` with a 0-d ``t`` and returns the
+    flattened float64 result, so one ``solve_ivp`` call integrates the whole batch.
     """
 
     def fun(t: float, y_flat: np.ndarray) -> np.ndarray:
@@ -631,21 +556,10 @@ def scipy_odeint(
     dtype: torch.dtype = torch.float64,
     **solve_ivp_kwargs: Any,
 ) -> Tensor:
-    """A whole batch in one ``scipy.integrate.solve_ivp`` call on the flattened state.
+    """``(T, batch, dim)`` float64 states at increasing ``t`` from ``y0 (batch, dim)``.
 
-    Args:
-        func: the field ``func(t, y)``, evaluated in ``dtype`` through :func:`scipy_fun`.
-        y0: ``(batch, dim)`` initial states.
-        t: ``(T,)`` increasing output times; the first is the initial time.
-        method: scipy's method name (``"RK45"``, ``"DOP853"``, …).
-        dtype: the dtype ``func`` is evaluated in.
-        **solve_ivp_kwargs: passed on, e.g. ``rtol`` and ``atol``.
-
-    Returns:
-        ``(T, batch, dim)`` float64 states at ``t``.
-
-    Raises:
-        RuntimeError: if scipy reports a failed solve.
+    One ``solve_ivp`` call (scipy ``method``, ``**solve_ivp_kwargs`` such as ``rtol``)
+    on the flattened batch through :func:`scipy_fun`; RuntimeError if scipy fails.
     """
     from scipy.integrate import solve_ivp
 

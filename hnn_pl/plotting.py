@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from hnn_pl.rollout import Rollout
+import torch
+from torch import Tensor
+
+from hnn_pl.rollouts import Rollout
 
 
 def _pyplot():
@@ -58,3 +61,42 @@ def energy_over_time(r: Rollout, max_lines: int = 4):
         axes[0, 1].set(xlabel="t", ylabel="H_θ", title="learned H_θ along the rollout")
     fig.tight_layout()
     return fig
+
+
+def latent_portrait(r: Rollout, max_lines: int = 4):
+    """The latent plane of a pixel rollout: encoded truth (solid), rollout (dashed)."""
+    latent = Rollout(r.t, r.z_true, r.z_pred, r.e_true, r.e_pred)
+    fig = phase_portrait(latent, max_lines)
+    fig.axes[0].set(
+        xlabel="z_q", ylabel="z_p", title="latent: encoded truth (solid), rollout (dashed)"
+    )
+    return fig
+
+
+def figures(r: Rollout) -> dict:
+    """``{tag: figure}`` of a rollout: ``rollout/phase_portrait`` (pixel models: the
+    latent plane) and ``rollout/energy``."""
+    portrait = latent_portrait(r) if r.is_pixel else phase_portrait(r)
+    return {"rollout/phase_portrait": portrait, "rollout/energy": energy_over_time(r)}
+
+
+def frames_image(r: Rollout, trajectory: int = 0, n_strip: int = 10) -> Tensor:
+    """True (top) and decoded (bottom) frames of one pixel rollout: ``(1, H, W)`` uint8.
+
+    ``n_strip`` frames evenly spaced over the rollout, the second frame of each
+    pair, mapped from ``[0, max of the true frames]`` to ``[0, 255]``.
+    """
+    from hnn_pl.render import frame_strip
+
+    n = r.x_true.shape[0]
+    side = int(round((r.x_true.shape[-1] // 2) ** 0.5))
+    idx = torch.linspace(0, n - 1, min(n_strip, n)).round().long()
+
+    def second(x: Tensor) -> Tensor:
+        return x[idx, trajectory, side * side :].reshape(-1, side, side).float().cpu()
+
+    true, pred = second(r.x_true), second(r.x_pred)
+    vmax = float(true.max()) or 1.0
+    top, bottom = frame_strip(true, vmax=vmax), frame_strip(pred, vmax=vmax)
+    gap = torch.full((2, top.shape[1]), 128, dtype=torch.uint8)
+    return torch.cat([top, gap, bottom])[None]

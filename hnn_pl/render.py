@@ -1,12 +1,11 @@
 """Pure-torch renderer of gym Pendulum-v0's scene, drawn directly at ``size × size``.
 
-The reference code (``experiment-pixels/data.py``) renders gym's pyglet viewer, keeps
-red minus green, crops and resizes with ``scipy.misc.imresize``; none of that runs on
-a current stack. :func:`render_pendulum` draws the same scene analytically, batched
-over any number of angles, anti-aliased by pixel coverage. :func:`save_png` is a tiny
-zlib PNG writer (no PIL) and :func:`frame_strip` tiles frames for a picture.
-
-Run ``python -m hnn_pl.render [path]`` to (re)draw ``docs/pixel_frames.png``.
+The reference (``experiment-pixels/data.py``) renders gym's pyglet viewer, keeps red
+minus green, crops and resizes with ``scipy.misc.imresize``; none of that runs on a
+current stack. :func:`render_pendulum` draws the same scene analytically, batched and
+anti-aliased by pixel coverage; :func:`save_png` is a zlib-only PNG writer and
+:func:`frame_strip` tiles frames. ``python -m hnn_pl.render [path]`` (re)draws
+``docs/pixel_frames.png``.
 
 Scene (gym ``PendulumEnv.render``, Pendulum-v0 era)::
 
@@ -15,14 +14,11 @@ Scene (gym ``PendulumEnv.render``, Pendulum-v0 era)::
     axle = rendering.make_circle(.05); axle.set_color(0, 0, 0)
     self.pole_transform.set_rotation(self.state[0] + np.pi/2)
 
-``make_capsule(1, .2)`` is the box ``[0, 1] × [−0.1, 0.1]`` plus discs of radius 0.1 at
-both ends, i.e. all points within 0.1 of the segment from the pivot to the tip. The
-reference keeps ``R − G``: background ``255 − 255 = 0``, rod ``204 − 76.5 ≈ 0.5·255``,
-black axle ``0 − 0 = 0`` (a small hole in the rod at the pivot, drawn after the rod).
-Its crop ``X[440:-220, 330:-330]`` of the 1000 × 1000 framebuffer (a 2× HiDPI screen;
-the crop needs more than 500 rows) at ``1000 / 4.4`` pixels per world unit is the
-window :data:`GYM_CROP_X`, :data:`GYM_CROP_Y` below, which ``imresize`` (PIL bilinear)
-shrinks to 28 × 28.
+``R − G`` is 0 on the background and on the black axle (a small hole in the rod, drawn
+after it) and ``204 − 76.5 ≈ 0.5·255`` on the rod. The reference's crop
+``X[440:-220, 330:-330]`` of the 1000 × 1000 framebuffer (a 2× HiDPI screen; the crop
+needs more than 500 rows) at ``1000 / 4.4`` px per world unit is the window
+:data:`GYM_CROP_X`, :data:`GYM_CROP_Y`, which ``imresize`` (PIL bilinear) shrinks to 28 × 28.
 """
 
 from __future__ import annotations
@@ -47,14 +43,9 @@ _FILTERS = ("box", "tent")
 
 
 def _coverage(sd: Tensor, filt: str, scale: float = 1.0) -> Tensor:
-    """Edge profile, in place: ``scale ×`` the fraction of a pixel inside a shape, from
-    the signed distance ``sd`` (in pixels, negative inside) of the pixel centre to the
-    shape's boundary.
-
-    ``box``: the linear 1-pixel ramp ``clamp(½ − sd, 0, 1)`` (exact area coverage for an
-    axis-aligned straight edge). ``tent``: the same edge seen through a tent filter of
-    half-width 1 pixel (what PIL's bilinear down-sampling in the reference does).
-    """
+    """In place, ``scale ×`` a pixel's covered fraction from the signed distance ``sd``
+    (pixels, negative inside) of its centre to a shape's edge: the ``box`` ramp
+    ``clamp(½ − sd, 0, 1)`` or the ``tent`` profile (see :func:`render_pendulum`)."""
     if filt == "box":
         return sd.mul_(-scale).add_(0.5 * scale).clamp_(0.0, scale)
     x = sd.clamp_(-1.0, 1.0)
@@ -87,70 +78,52 @@ def render_pendulum(
 ) -> Tensor:
     """Gym Pendulum-v0 frames (reference preprocessing), ``(...,) -> (..., size, size)``.
 
-    **Angle.** ``θ = 0`` is the rod hanging straight down from the pivot; ``θ > 0``
-    swings it to the **right** of the image (towards ``+x``), as in gym's viewer and
-    in the reference's ``get_theta`` (``θ = θ_gym − π``). The rod points from the pivot
-    along ``(sin θ, −cos θ)`` in the world (``y`` up), i.e. ``(sin θ, cos θ)`` in the
-    image (``x`` right, ``y`` down). The tip is at ``length·(sin θ, cos θ)``.
+    **Geometry.** ``θ = 0`` hangs straight down, ``θ > 0`` swings the rod to the image's
+    **right** (``+x``) as in gym's viewer and the reference's ``get_theta``
+    (``θ = θ_gym − π``): the tip is at ``length·(sin θ, cos θ)`` in image coordinates
+    (``x`` right, ``y`` down). The rod is a capsule (all points within ``width/2`` of the
+    pivot-tip segment) of value ``intensity`` on 0, minus the axle disc (drawn on top).
 
-    **Geometry.** The rod is a capsule: all points within ``width/2`` of the segment
-    from the pivot to the tip, of value ``intensity`` on a background 0. A disc of
-    radius ``axle_radius`` about the pivot (gym's black axle, drawn on top) is 0
-    again; ``axle_radius = 0`` leaves the rod whole.
+    **World → pixel.** The window ``x ∈ [x0, x1]``, ``y ∈ [y0, y1]`` (world units about
+    the pivot, ``y`` down; default the reference crop, ``x ∈ ±0.748``,
+    ``y ∈ [−0.264, 1.232]``) is cut into ``size × size`` pixels of
+    ``hx = (x1 − x0)/size`` by ``hy = (y1 − y0)/size``: pixel ``[i, j]`` (row from the
+    top, column from the left) has its centre at ``(x0 + (j + ½)hx, y0 + (i + ½)hy)``.
+    With the defaults a pixel is 0.0534 units, the rod 18.7 px long and 3.7 px wide and
+    the pivot at ``(i, j) = (4.44, 13.5)``.
 
-    **World → pixel.** With image coordinates ``(x, y)`` in world units about the
-    pivot (``y`` down), the window ``x ∈ [x0, x1]``, ``y ∈ [y0, y1]`` (``x_range``,
-    ``y_range``; default the reference crop, ``x ∈ ±0.748``, ``y ∈ [−0.264, 1.232]``)
-    is cut into ``size × size`` pixels of ``hx = (x1 − x0)/size`` by
-    ``hy = (y1 − y0)/size``: pixel ``[i, j]`` (row ``i`` from the top, column ``j``
-    from the left) covers ``[x0 + j·hx, x0 + (j+1)·hx] × [y0 + i·hy, y0 + (i+1)·hy]``,
-    its centre is ``(x0 + (j + ½)hx, y0 + (i + ½)hy)``. Inverse: a point ``(x, y)``
-    sits at fractional index ``j = (x − x0)/hx − ½``, ``i = (y − y0)/hy − ½``. With the
-    defaults a pixel is 0.0534 world units, the rod 18.7 px long and 3.7 px wide and the
-    pivot at ``(i, j) = (4.44, 13.5)``.
+    **Anti-aliasing.** A pixel holds ``intensity ×`` the ramp ``clamp(½ − d/h, 0, 1)`` of
+    the signed distance ``d`` of its centre to the capsule (and the axle), ``h = √(hx·hy)``:
+    exact coverage for straight axis-aligned edges, else off by ≤ ~0.06·intensity per
+    pixel and < 0.5 % per frame. ``supersample = k > 1`` averages ``k × k`` sub-pixels
+    (``k = 4``: ≤ 0.012·intensity, ``k²`` times the cost). ``filter = "tent"`` sees the
+    scene through a tent of half-width 1 pixel, as PIL's bilinear 340 → 28 px
+    down-sampling did to the reference frames (softer edges, same total): a 1-D tent
+    profile of ``d`` for ``k = 1`` (within ~0.1·intensity of the 2-D tent), the exact
+    separable tent over the sub-pixels for ``k > 1``. Centres more than ½ px (box) or
+    1 px (tent) inside the rod give ``intensity``, as far outside exactly 0.
 
-    **Anti-aliasing.** Each pixel holds ``intensity ×`` the fraction of it the shape
-    covers: from the signed distance ``d`` of the pixel centre to the capsule (and to
-    the axle disc) through a 1-pixel ramp ``clamp(½ − d/h, 0, 1)`` (``h = √(hx·hy)``),
-    exact for straight axis-aligned edges; against the exact coverage a pixel is off
-    by at most ~0.06·intensity and a frame's total by < 0.5 %. ``supersample = k > 1``
-    evaluates that at ``k × k`` sub-pixels (ramp ``1/k`` px wide) and averages them,
-    converging to the exact coverage (``k = 4``: ≤ 0.012·intensity per pixel) at
-    ``k²`` times the cost. ``filter = "tent"`` instead sees the scene through a tent
-    of half-width 1 pixel, which is what PIL's bilinear down-sampling (``imresize``,
-    340 → 28 px) did to the reference frames: softer edges, same total intensity.
-    With ``k = 1`` it is a 1-D tent profile of ``d`` (within ~0.1·intensity of the
-    separable 2-D tent), with ``k > 1`` the exact separable tent applied to the
-    sub-pixels. Values lie in ``[0, intensity]``; a pixel whose centre lies more than
-    ½ pixel (``box``) or 1 pixel (``tent``) inside the rod equals ``intensity``, one
-    whose centre lies that far outside the rod is exactly 0.
-
-    Not drawn: gym's ``clockwise.png`` torque arrow (the 2019 gym draws it at a
-    default 1 × 1 scale whenever ``last_u`` is falsy, possibly over the rod) and the
-    reference's 8-bit quantisation of the frames.
+    Not drawn: gym's torque arrow (``clockwise.png``, drawn whenever ``last_u`` is falsy,
+    possibly over the rod) and the reference's 8-bit quantisation.
 
     Args:
-        theta: angles in radians, any shape ``(...)``; a float tensor's dtype sets the
-            output's, otherwise the default dtype. Device follows ``theta``.
+        theta: angles (radians), any shape; a float tensor sets the dtype (else the
+            default dtype); the device follows ``theta``.
         size: frame side in pixels.
         length: rod length (pivot to the centre of the tip's cap), world units.
         width: rod width (capsule diameter), world units.
-        intensity: value of a fully covered rod pixel (``R − G`` of gym's colour,
-            ``(204 − 77)/255 ≈ 0.5``).
-        axle_radius: radius of the black axle disc at the pivot (0: none).
-        x_range: ``(x0, x1)`` of the window, world units, ``+x`` to the right.
-        y_range: ``(y0, y1)`` of the window, world units **below** the pivot.
+        intensity: a fully covered rod pixel (``R − G``: ``(204 − 77)/255 ≈ 0.5``).
+        axle_radius: radius of the axle disc (0: none).
+        x_range: ``(x0, x1)``, world units, ``+x`` to the right.
+        y_range: ``(y0, y1)``, world units **below** the pivot.
         supersample: ``k``, sub-pixels per pixel side.
-        filter: ``"box"`` (pixel coverage) or ``"tent"`` (the reference's bilinear
-            down-sampling).
-        chunk: frames rendered per batch. Default: as many as keep each elementwise
-            operation under PyTorch's parallelisation grain (32 768 elements, 41
-            frames of 28 × 28), so that the work runs on one thread without
-            synchronisation; measured on 2 busy cores, that is 3–10 × faster than
-            batches of 1024 frames on 2 threads.
+        filter: ``"box"`` (pixel coverage) or ``"tent"`` (bilinear down-sampling).
+        chunk: frames per batch; default: as many as keep each elementwise op under
+            PyTorch's parallelisation grain (32 768 elements, 41 frames of 28 × 28), so
+            it runs on one thread: 3–10 × faster than 1024-frame batches on 2 busy cores.
 
     Returns:
-        Tensor of shape ``(..., size, size)``, values in ``[0, intensity]``.
+        ``(..., size, size)``, values in ``[0, intensity]``.
     """
     if filter not in _FILTERS:
         raise ValueError(f"filter must be one of {_FILTERS}, got {filter!r}")
@@ -221,24 +194,16 @@ def frame_strip(
     vmax = float(frames.max()) if vmax is None else vmax
     img = (frames / max(vmax, 1e-12)).clamp(0, 1).mul(255).round().to(torch.uint8)
     img = img.repeat_interleave(scale, dim=-2).repeat_interleave(scale, dim=-1)
-    n, hh, _ = img.shape
-    sep = torch.full((hh, gap), gap_value, dtype=torch.uint8)
-    parts: list[Tensor] = []
-    for i in range(n):
-        if i and gap:
-            parts.append(sep)
-        parts.append(img[i])
-    return torch.cat(parts, dim=1)
+    n, hh, ww = img.shape
+    sep = torch.full((n, hh, gap), gap_value, dtype=torch.uint8)
+    tiled = torch.cat([img, sep], dim=2).permute(1, 0, 2).reshape(hh, -1)
+    return tiled[:, : n * (ww + gap) - gap]
 
 
 def save_png(path: str | Path, image_uint8: Tensor | Sequence) -> None:
-    """Write an 8-bit PNG with nothing but ``zlib``.
-
-    Args:
-        path: file to write (parent directories are created).
-        image_uint8: ``(H, W)`` grayscale or ``(H, W, 3)`` RGB, values 0..255 (a tensor,
-            an array or nested lists; converted with ``torch.as_tensor``).
-    """
+    """Write ``image_uint8``, ``(H, W)`` grayscale or ``(H, W, 3)`` RGB with values 0..255
+    (anything ``torch.as_tensor`` takes), as an 8-bit PNG to ``path`` (parents created),
+    with nothing but ``zlib``."""
     img = torch.as_tensor(image_uint8)
     if img.dtype != torch.uint8:
         if img.is_floating_point() or img.min() < 0 or img.max() > 255:

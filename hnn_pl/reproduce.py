@@ -6,8 +6,8 @@ protocols of :mod:`hnn_pl.evaluate`. Runs go to a pool of worker processes with
 one torch thread each (on 2 cores two single-threaded runs beat one two-threaded
 run); each finished run is written to the JSON file at once, so a failed or
 interrupted run loses nothing else, and ``RESULTS.md`` is rewritten from it.
-Seeds change the model's initialisation (``seed_everything``); every seed sees the
-same data set (data seed 0), as the paper had one data set per task.
+Each seed (``seed_everything``) draws its own initialisation and, as in the
+reference code, its own data set, so spreads over seeds include data variance.
 """
 
 from __future__ import annotations
@@ -26,38 +26,15 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
-#: task -> (baseline config, HNN config)
-CONFIGS = {
-    "spring": ("spring_baseline.yaml", "spring.yaml"),
-    "pendulum": ("pendulum_baseline.yaml", "pendulum.yaml"),
-    "real_pendulum": ("real_pendulum_baseline.yaml", "real_pendulum.yaml"),
-    "two_body": ("two_body_baseline.yaml", "two_body.yaml"),
-    "three_body": ("three_body_baseline.yaml", "three_body.yaml"),
-    "pixel": ("pixel_baseline.yaml", "pixel.yaml"),
-}
-#: what runs without --tasks: the state tasks (the pixel task adds ~6 min per run)
-DEFAULT_TASKS = ["spring", "pendulum", "real_pendulum", "two_body", "three_body"]
-MODELS = ("baseline", "hnn")
+from hnn_pl import tasks
 
-#: the reference README's numbers (SPEC): (train loss, test loss, energy MSE, energy ±)
-PUBLISHED = {
-    ("spring", "baseline"): (3.7134e-02, 3.6656e-02, 1.7077e-01, 2.06e-02),
-    ("spring", "hnn"): (3.6933e-02, 3.5928e-02, 3.8416e-04, 6.53e-05),
-    ("pendulum", "baseline"): (3.2606e-02, 3.5273e-02, 4.1519e-02, 9.62e-03),
-    ("pendulum", "hnn"): (3.2787e-02, 3.5586e-02, 2.4852e-02, 5.42e-03),
-    ("real_pendulum", "baseline"): (2.7455e-03, 2.1864e-03, 3.8564e-01, 6.92e-02),
-    ("real_pendulum", "hnn"): (9.2376e-03, 5.9584e-03, 1.4477e-02, 4.65e-03),
-    ("two_body", "baseline"): (3.2682e-05, 2.9575e-05, 6.3276e-02, 3.36e-02),
-    ("two_body", "hnn"): (2.9959e-06, 2.8218e-06, 3.8751e-05, 5.04e-06),
-    ("three_body", "baseline"): (9.5573e-02, 3.8000e-01, 1.0906e02, 7.74e01),
-    ("three_body", "hnn"): (8.0346e-02, 4.8809e-01, 4.1926e-02, 3.39e-02),
-    ("pixel", "baseline"): (1.7731e-04, 1.7306e-04, 9.2748e-03, 1.14e-03),
-    ("pixel", "hnn"): (1.8683e-04, 1.8451e-04, 1.5315e-04, 8.42e-06),
-}
+MODELS = tasks.MODELS
 
 
-def _job_args(task: str, model: str, seed: int, max_steps: int | None) -> list[str]:
-    config = CONFIGS[task][MODELS.index(model)]
+def _job_args(
+    task: str, model: str, seed: int, max_steps: int | None, recipe: str = "paper"
+) -> list[str]:
+    config = tasks.get(task).config(model, recipe)
     args = ["--config", config, f"--seed_everything={seed}", "--trainer.logger=false"]
     args += ["--trainer.enable_checkpointing=false", "--trainer.enable_progress_bar=false"]
     args += ["--trainer.callbacks=[]", "--trainer.limit_val_batches=0"]
@@ -67,7 +44,9 @@ def _job_args(task: str, model: str, seed: int, max_steps: int | None) -> list[s
     return args
 
 
-def run_one(task: str, model: str, seed: int, max_steps: int | None = None) -> dict:
+def run_one(
+    task: str, model: str, seed: int, max_steps: int | None = None, recipe: str = "paper"
+) -> dict:
     """Train one model from its config and evaluate it; never raises.
 
     Returns:
@@ -79,19 +58,16 @@ def run_one(task: str, model: str, seed: int, max_steps: int | None = None) -> d
         import torch
 
         torch.set_num_threads(1)
+        from hnn_pl import evaluate
         from hnn_pl.cli import cli_main
-        from hnn_pl.evaluate import evaluate, evaluate_pixel
 
-        cli = cli_main(_job_args(task, model, seed, max_steps), run=False)
+        cli = cli_main(_job_args(task, model, seed, max_steps, recipe), run=False)
         cli.datamodule.prepare_data()
         cli.datamodule.setup("fit")
         t0 = time.perf_counter()
         cli.trainer.fit(cli.model, cli.datamodule)
         t1 = time.perf_counter()
-        if task == "pixel":
-            record.update(evaluate_pixel(cli.model, cli.datamodule))
-        else:
-            record.update(evaluate(cli.model.field, cli.datamodule, task))
+        record.update(evaluate.evaluate(cli.model, cli.datamodule, task))
         record.update(
             train_s=t1 - t0, eval_s=time.perf_counter() - t1, steps=cli.trainer.global_step
         )
@@ -100,16 +76,16 @@ def run_one(task: str, model: str, seed: int, max_steps: int | None = None) -> d
     return record
 
 
-def _prepare_data(tasks: list[str]) -> dict[str, float]:
-    """Generate every task's data once, before the workers start; returns seconds."""
+def _prepare_data(jobs: list[tuple[str, str, int]], recipe: str) -> dict[str, float]:
+    """Generate every job's data once, before the workers start; seconds per task."""
     from hnn_pl.cli import cli_main
 
-    times = {}
-    for task in tasks:
-        cli = cli_main(_job_args(task, "hnn", 0, None), run=False)
+    times: dict[str, float] = {}
+    for task, model, seed in jobs:
+        cli = cli_main(_job_args(task, model, seed, None, recipe), run=False)
         t0 = time.perf_counter()
         cli.datamodule.prepare_data()
-        times[task] = time.perf_counter() - t0
+        times[task] = times.get(task, 0.0) + time.perf_counter() - t0
     return times
 
 
@@ -129,7 +105,7 @@ def _fmt(mean: float, std: float | None = None) -> str:
 def summarize(records: list[dict]) -> list[dict]:
     """One row per (task, model): means ± std over seeds of every number."""
     rows = []
-    for task in CONFIGS:
+    for task in tasks.TASKS:
         for model in MODELS:
             runs = [r for r in records if r["task"] == task and r["model"] == model]
             if not runs:
@@ -160,7 +136,7 @@ def _contributing(calls: list[dict], records: list[dict]) -> list[dict]:
 
 def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
     """``RESULTS.md``: per task and model, ours (mean ± std over seeds) beside the paper's."""
-    from hnn_pl.evaluate import CLEAN, PIXEL_PROTOCOLS, REFERENCE
+    from hnn_pl.protocols import describe
 
     rows = summarize(records)
     lines = [
@@ -183,7 +159,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
-        pub = PUBLISHED.get((row["task"], row["model"]), (math.nan,) * 4)
+        pub = tasks.get(row["task"]).published[row["model"]]
         fail = f" ({row['failed']} failed)" if row["failed"] else ""
         lines.append(
             f"| {row['task']} | {row['model']} | {row['seeds']}{fail} "
@@ -199,10 +175,11 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         "|---|---|---|---|",
     ]
     by = {(r["task"], r["model"]): r for r in rows}
-    for task in CONFIGS:
+    for task in tasks.TASKS:
         if (task, "baseline") in by and (task, "hnn") in by:
             b, h = by[task, "baseline"], by[task, "hnn"]
-            pub = PUBLISHED[task, "baseline"][2] / PUBLISHED[task, "hnn"][2]
+            published = tasks.get(task).published
+            pub = published["baseline"].energy_mse / published["hnn"].energy_mse
             ref = b["ref_energy"][0] / h["ref_energy"][0]
             clean = b["clean_energy"][0] / h["clean_energy"][0]
             lines.append(f"| {task} | {ref:.3g} | {pub:.3g} | {clean:.3g} |")
@@ -210,40 +187,30 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
     seeds = sorted({r["seed"] for r in records})
     lines += ["| task | model | " + " | ".join(f"seed {s}" for s in seeds) + " |"]
     lines += ["|---|---|" + "---|" * len(seeds)]
+    ok = {(r["task"], r["model"], r["seed"]): r for r in records if "error" not in r}
     for row in rows:
-        cells = []
-        for seed in seeds:
-            run = next(
-                (
-                    r
-                    for r in records
-                    if (r["task"], r["model"], r["seed"]) == (row["task"], row["model"], seed)
-                ),
-                None,
-            )
-            ok = run is not None and "error" not in run
-            cells.append(
-                f"{run['reference']['energy_mse']:.2e} / {run['clean']['energy_mse']:.2e}"
-                if ok
-                else "—"
-            )
+        runs = [ok.get((row["task"], row["model"], seed)) for seed in seeds]
+        cells = [
+            f"{r['reference']['energy_mse']:.2e} / {r['clean']['energy_mse']:.2e}" if r else "—"
+            for r in runs
+        ]
         lines.append(f"| {row['task']} | {row['model']} | " + " | ".join(cells) + " |")
     lines += ["", "## Protocols", ""]
     lines += [
-        "Reference: the published procedure with its quirks (`hnn_pl.evaluate.REFERENCE`); "
+        "Reference: the published procedure with its quirks (`hnn_pl.tasks`); "
         "scipy RK45, one `solve_ivp` call per model on the flattened batch of starts. "
         "Clean: held-out starts, the task's energy, float64 per-trajectory `dopri5` at "
-        "rtol = atol = 1e-9, ground truth at 1e-10 (`hnn_pl.evaluate.CLEAN`).",
+        "rtol = atol = 1e-9, ground truth at 1e-10 (`hnn_pl.tasks`).",
         "",
         "| task | reference | clean |",
         "|---|---|---|",
     ]
-    for task in CONFIGS:
-        if task == "pixel":
-            ref, clean = PIXEL_PROTOCOLS["reference"], PIXEL_PROTOCOLS["clean"]
-        else:
-            ref, clean = _protocol_text(REFERENCE[task]), _protocol_text(CLEAN[task])
-        lines.append(f"| {task} | {ref} | {clean} |")
+    for name in dict.fromkeys(r["task"] for r in records):
+        task = tasks.get(name)
+        ref, clean = (
+            task.notes.get(k) or describe(task.protocol(k)) for k in ("reference", "clean")
+        )
+        lines.append(f"| {name} | {ref} | {clean} |")
     failures = [r for r in records if "error" in r]
     if failures:
         lines += ["", "## Failed runs", ""]
@@ -253,17 +220,13 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _protocol_text(p) -> str:
-    from dataclasses import asdict, fields
-
-    default = type(p)()
-    changed = {
-        f.name: getattr(p, f.name)
-        for f in fields(p)
-        if getattr(p, f.name) != getattr(default, f.name)
-    }
-    base = ", ".join(f"{k}={v}" for k, v in asdict(default).items())
-    return ", ".join(f"{k}={v}" for k, v in changed.items()) or f"defaults ({base})"
+def _new_run_dir(recipe: str) -> Path:
+    """``results/<recipe>-<YYYYmmdd-HHMMSS>[-k]``, a folder that does not exist yet."""
+    base = Path("results") / f"{recipe}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path, k = base, 1
+    while path.exists():
+        path, k = base.with_name(f"{base.name}-{k}"), k + 1
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -273,15 +236,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--tasks",
         nargs="+",
-        default=DEFAULT_TASKS,
-        choices=list(CONFIGS),
+        default=tasks.DEFAULT_TASKS,
+        choices=list(tasks.TASKS),
         help="default: the state tasks; add pixel explicitly",
     )
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=list(MODELS))
+    parser.add_argument(
+        "--recipe",
+        default="paper",
+        choices=tasks.RECIPES,
+        help="paper: the paper's settings (TASK.yaml); fast: the fast recipes (TASK_fast.yaml)",
+    )
     parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, …)")
     parser.add_argument("--workers", type=int, default=2, help="processes; 0 runs in this process")
     parser.add_argument("--max-steps", type=int, default=None, help="override every config's steps")
-    parser.add_argument("--out", default="RESULTS.md", help="the Markdown table")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="the Markdown table (default: a new results/<recipe>-<time>/RESULTS.md; "
+        "an existing file is overwritten only when named here)",
+    )
     parser.add_argument("--json", default=None, help="the raw records (default: OUT with .json)")
     parser.add_argument(
         "--merge",
@@ -289,14 +263,15 @@ def main(argv: list[str] | None = None) -> int:
         help="keep the runs already in the JSON file that this call does not redo",
     )
     args = parser.parse_args(argv)
-    out = Path(args.out)
+    if args.seeds < 1 or args.workers < 0 or (args.max_steps is not None and args.max_steps < 1):
+        parser.error("--seeds and --max-steps must be >= 1, --workers >= 0")
+    out = Path(args.out) if args.out else _new_run_dir(args.recipe) / "RESULTS.md"
     json_path = Path(args.json) if args.json else out.with_suffix(".json")
+    out.parent.mkdir(parents=True, exist_ok=True)
     jobs = [(t, m, s) for t in args.tasks for m in args.models for s in range(args.seeds)]
-    # longest first, so the pool ends together
-    order = ["three_body", "two_body", "pixel", "pendulum", "spring", "real_pendulum"]
-    jobs.sort(key=lambda j: (order.index(j[0]) if j[0] in order else 99, j[2], j[1]))
+    jobs.sort(key=lambda j: (-tasks.get(j[0]).cost, j[2], j[1]))  # longest first
     start = time.perf_counter()
-    data_s = _prepare_data(list(dict.fromkeys(t for t, _, _ in jobs)))
+    data_s = _prepare_data(jobs, args.recipe)
     records: list[dict] = []
     if args.merge and json_path.exists():
         redo = set(jobs)
@@ -312,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
         f"Python {platform.python_version()}",
         "command": "`python -m hnn_pl reproduce " + " ".join(argv or sys.argv[2:]) + "`",
         "workers": max(args.workers, 1),
+        "recipe": args.recipe,
         "data_s": data_s,
     }
     if kept:
@@ -343,10 +319,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.workers == 0:
         for job in jobs:
-            done(run_one(*job, max_steps=args.max_steps))
+            done(run_one(*job, max_steps=args.max_steps, recipe=args.recipe))
     else:
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(run_one, *job, max_steps=args.max_steps) for job in jobs]
+            futures = [
+                pool.submit(run_one, *job, max_steps=args.max_steps, recipe=args.recipe)
+                for job in jobs
+            ]
             for future in as_completed(futures):
                 done(future.result())
     print(f"wrote {out} and {json_path} in {time.perf_counter() - start:.0f} s")

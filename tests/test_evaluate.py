@@ -8,13 +8,13 @@ import pytest
 import torch
 from torch import nn
 
+from hnn_pl import tasks
 from hnn_pl.data import RealPendulumData, SimulatedData
 from hnn_pl.evaluate import (
-    REFERENCE,
     ReferenceProtocol,
     _box_starts,
     _scipy_rollout,
-    evaluate_clean,
+    evaluate_protocol,
     evaluate_reference,
     grouped_mean,
 )
@@ -61,7 +61,7 @@ def test_spring_time_stretch_compounds_per_trial():
     """Trial k (1…15) of the spring is read at 1.09**(k+1) · t: the reference's in-place
     bug, whose last horizon is t ≈ 79 (SPEC)."""
     system = MassSpring()
-    p = REFERENCE["spring"]
+    p = tasks.get("spring").reference
     y0 = _box_starts(p, 2, seed=0)
     t = torch.linspace(0, 20, 100, dtype=torch.float64)
     stretch = p.time_stretch ** torch.arange(2, 17, dtype=torch.float64)
@@ -84,7 +84,7 @@ def test_box_starts_cover_both_signs_of_the_range():
 def test_pendulum_reference_energy_is_q2_plus_p2(tmp_path):
     dm = SimulatedData(Pendulum(), n_points=45, cache_dir=str(tmp_path))
     dm.setup()
-    p = REFERENCE["pendulum"]
+    p = tasks.get("pendulum").reference
     assert p.energy == "q2p2" and p.time_stretch == 1.0
     default_energy = evaluate_reference(
         TrueField(dm.system, 0.05), dm, "pendulum", ReferenceProtocol(energy="system")
@@ -94,8 +94,8 @@ def test_pendulum_reference_energy_is_q2_plus_p2(tmp_path):
 
 
 def test_clean_protocol_scores_the_true_field_near_zero(spring_dm):
-    good = evaluate_clean(TrueField(spring_dm.system), spring_dm, "spring")
-    bad = evaluate_clean(TrueField(spring_dm.system, 0.05), spring_dm, "spring")
+    good = evaluate_protocol(TrueField(spring_dm.system), spring_dm, tasks.get("spring").clean)
+    bad = evaluate_protocol(TrueField(spring_dm.system, 0.05), spring_dm, tasks.get("spring").clean)
     assert good["energy_mse"] < 1e-14 and good["state_mse"] < 1e-12
     assert bad["energy_mse"] > 1e-4
     assert good["n_trajectories"] == 25 and good["t_end"] == 20.0
@@ -105,7 +105,7 @@ def test_real_pendulum_protocols_use_the_measured_segment(tmp_path):
     dm = RealPendulumData(cache_dir=str(tmp_path), dtype="float64")
     dm.setup()
     ref = evaluate_reference(TrueField(dm.system), dm, "real_pendulum")
-    clean = evaluate_clean(TrueField(dm.system), dm, "real_pendulum")
+    clean = evaluate_protocol(TrueField(dm.system), dm, tasks.get("real_pendulum").clean)
     assert ref["n_trajectories"] == clean["n_trajectories"] == 1
     assert ref["t_end"] == pytest.approx(99.1667, abs=1e-3)
     # the ideal pendulum is not the measured one (friction): a finite, non-zero error

@@ -8,11 +8,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from hnn_pl.callbacks import PixelRollout, PixelRolloutCallback, apply_probe, fit_probe
+from hnn_pl import plotting, rollouts
 from hnn_pl.cli import cli_main
 from hnn_pl.data.pixel import PixelPendulumData
 from hnn_pl.models import AutoencoderBaseline, AutoencoderHNN
 from hnn_pl.render import render_pendulum
+from hnn_pl.rollouts import Rollout, apply_probe, fit_probe
+from hnn_pl.tasks import TASKS
 
 #: a tiny data set: 6 trajectories × 8 frames (5 samples each), 2 held out, rollouts of 12
 TINY = dict(n_trajectories=6, n_frames=8, rollout_frames=12, test_fraction=1 / 3)
@@ -187,11 +189,11 @@ def test_loss_is_recon_plus_canonical_plus_weighted_one_frame_euler_step(cls):
 def test_field_weight_decay_is_its_own_parameter_group():
     small = dict(input_dim=50, hidden_dim=8, field_hidden_dim=8)
     model = AutoencoderHNN(**small, field_weight_decay=0.0)
-    ae, field = model.configure_optimizers().param_groups
+    ae, field = model.configure_optimizers()["optimizer"].param_groups
     assert ae["weight_decay"] == 1e-5 and field["weight_decay"] == 0.0 and field["lr"] == 1e-3
     assert {id(p) for p in field["params"]} == {id(p) for p in model.field.parameters()}
     assert len(ae["params"]) + len(field["params"]) == len(list(model.parameters()))
-    default = AutoencoderBaseline(**small).configure_optimizers()
+    default = AutoencoderBaseline(**small).configure_optimizers()["optimizer"]
     assert [g["weight_decay"] for g in default.param_groups] == [1e-5, 1e-5]
 
 
@@ -240,7 +242,8 @@ def test_short_fit_logs_losses_rollout_metrics_and_images(fitted):
     assert type(cli.model) is (AutoencoderBaseline if "baseline" in config else AutoencoderHNN)
     assert cli.model.hparams.input_dim == 1568  # linked from data.state_dim
     log_dir = cli.trainer.logger.log_dir
-    assert len(list(Path(log_dir, "checkpoints").glob("*.ckpt"))) == 1
+    ckpts = sorted(p.name for p in Path(log_dir, "checkpoints").glob("*.ckpt"))
+    assert ckpts == ["epoch=1-step=4.ckpt", "last.ckpt"]
     acc = EventAccumulator(log_dir, size_guidance={"images": 0, "scalars": 0})
     acc.Reload()
     scalars, images = set(acc.Tags()["scalars"]), set(acc.Tags()["images"])
@@ -258,27 +261,31 @@ def test_short_fit_logs_losses_rollout_metrics_and_images(fitted):
 
 def test_callback_run_returns_consistent_metrics_and_rollout(fitted):
     config, _, cli = fitted
-    cb = PixelRolloutCallback(n_frames=15, method="rk4")
+    protocol = TASKS["pixel"].clean.replace(n_points=15, method="rk4")
     cli.model.train()
-    metrics, r = cb.run(cli.trainer, cli.model)
+    metrics, r = rollouts.evaluate(cli.model, cli.datamodule, protocol)
     assert cli.model.training  # evaluated in eval mode, training mode restored
-    assert isinstance(r, PixelRollout) and all(isinstance(v, float) for v in metrics.values())
+    assert (
+        isinstance(r, Rollout)
+        and r.is_pixel
+        and all(isinstance(v, float) for v in metrics.values())
+    )
     assert r.z_pred.shape == (15, 2, 2) and r.x_pred.shape == r.x_true.shape == (15, 2, 1568)
     assert r.y_true.shape == r.y_pred.shape == (15, 2, 2)
     dm = cli.datamodule
     e = 1.875 * (1 - torch.cos(r.y_pred[..., 0])) + r.y_pred[..., 1] ** 2
     torch.testing.assert_close(r.e_pred, e)
     e_mse = float(((dm.energy(dm.rollout_truth(n_points=15)[1]).double() - e) ** 2).mean())
-    assert metrics["rollout/energy_mse"] == pytest.approx(e_mse, rel=1e-5)
+    assert metrics["energy_mse"] == pytest.approx(e_mse, rel=1e-5)
     pix = float(((r.x_pred - r.x_true) ** 2).mean())
-    assert metrics["rollout/pixel_mse"] == pytest.approx(pix, rel=1e-6)
+    assert metrics["pixel_mse"] == pytest.approx(pix, rel=1e-6)
     # the rollout starts at the encoding of the first true pair
     torch.testing.assert_close(r.z_pred[0], r.z_true[0], rtol=0, atol=1e-6)
     if "baseline" in config:
-        assert r.h_pred is None and "rollout/conserved_drift" not in metrics
+        assert r.h_pred is None and "conserved_drift" not in metrics
     else:
-        assert r.h_pred.shape == (15, 2) and metrics["rollout/conserved_drift"] >= 0
-    img = cb.frames_image(r)
+        assert r.h_pred.shape == (15, 2) and metrics["conserved_drift"] >= 0
+    img = plotting.frames_image(r)
     assert img.dtype == torch.uint8 and img.shape == (1, 2 * 28 * 4 + 2, 10 * 28 * 4 + 9)
 
 
@@ -306,7 +313,7 @@ def test_checkpoint_round_trip_decodes_the_same_rollout(fitted):
     config, _, cli = fitted
     cls = AutoencoderBaseline if "baseline" in config else AutoencoderHNN
     loaded = cls.load_from_checkpoint(cli.trainer.checkpoint_callback.best_model_path)
-    assert len(loaded.hparams) == 15
+    assert len(loaded.hparams) == 21  # 15 model arguments and 6 of the training recipe
     assert all(loaded.hparams[k] == cli.model.hparams[k] for k in loaded.hparams)
     x0 = cli.datamodule.rollout_x[0]
     z_a, x_a = loaded.rollout(x0, 30, method="rk4")

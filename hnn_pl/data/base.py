@@ -40,12 +40,21 @@ class TensorBatches:
     slices of one random permutation (``shuffle=True``, drawn from ``generator``)
     or of the identity.
 
+    **Data parallel** (``world_size`` W > 1): ``batch_size`` is the *global* batch.
+    Every rank draws the same permutation (seed ``generator`` alike) and takes the
+    contiguous block ``[⌊r·m/W⌋, ⌊(r+1)·m/W⌋)`` of each global batch of ``m`` rows
+    (full batch: a view, the same every step): disjoint, in rank order the global
+    batch, sizes within one. With ``W | m`` DDP's averaged gradient equals the
+    one-process one exactly (else row weights are off by ``≤ 1/⌊m/W⌋``). A last
+    global batch of fewer than ``W`` rows joins the one before, so every rank
+    yields the same number of non-empty batches.
+
     Args:
         tensors: tensors whose first axes have the same length ``N``.
-        batch_size: rows per batch, or ``None`` for all rows.
-        shuffle: draw a new permutation every epoch.
-        generator: the random source of the permutations.
+        batch_size: rows per (global) batch, or ``None`` for all rows.
+        shuffle, generator: a new permutation from ``generator`` every epoch.
         repeats: full-batch steps per epoch (ignored for mini-batches).
+        rank, world_size: this process's data-parallel rank and the number ``W``.
     """
 
     def __init__(
@@ -55,6 +64,8 @@ class TensorBatches:
         shuffle: bool = False,
         generator: torch.Generator | None = None,
         repeats: int = 1,
+        rank: int = 0,
+        world_size: int = 1,
     ) -> None:
         self.tensors = tensors
         self.n = len(tensors[0])
@@ -62,22 +73,62 @@ class TensorBatches:
         self.shuffle = shuffle
         self.generator = generator
         self.repeats = repeats if self.batch_size == self.n else 1
+        if not 0 <= rank < world_size:
+            raise ValueError(
+                f"need 0 <= rank < world_size, got rank={rank}, world_size={world_size}"
+            )
+        if world_size > 1 and self.batch_size < world_size:
+            raise ValueError(
+                f"{world_size} data-parallel processes need at least as many rows per batch; "
+                f"got batch_size={batch_size} of {self.n} rows"
+            )
+        self.rank = rank
+        self.world_size = world_size
+
+    def _global_batches(self) -> list[tuple[int, int]]:
+        """``(start, stop)`` of each global batch; a tail of < ``W`` rows is merged."""
+        bounds = [(s, min(s + self.batch_size, self.n)) for s in range(0, self.n, self.batch_size)]
+        if len(bounds) > 1 and bounds[-1][1] - bounds[-1][0] < self.world_size:
+            bounds[-2:] = [(bounds[-2][0], self.n)]
+        return bounds
+
+    def _shard(self, start: int, stop: int) -> tuple[int, int]:
+        """This rank's block ``(lo, hi)`` of the global batch ``[start, stop)``."""
+        m, w, r = stop - start, self.world_size, self.rank
+        return start + r * m // w, start + (r + 1) * m // w
 
     def __len__(self) -> int:
-        return self.repeats * -(-self.n // self.batch_size)
+        return self.repeats * len(self._global_batches())
 
     def __iter__(self):
         if self.batch_size == self.n:
+            lo, hi = self._shard(0, self.n)
+            batch = self.tensors if hi - lo == self.n else tuple(t[lo:hi] for t in self.tensors)
             for _ in range(self.repeats):
-                yield self.tensors
+                yield batch
             return
         index = torch.randperm(self.n, generator=self.generator) if self.shuffle else None
-        for start in range(0, self.n, self.batch_size):
+        for start, stop in self._global_batches():
+            lo, hi = self._shard(start, stop)
             if index is None:
-                yield tuple(t[start : start + self.batch_size] for t in self.tensors)
+                yield tuple(t[lo:hi] for t in self.tensors)
             else:
-                rows = index[start : start + self.batch_size]
+                rows = index[lo:hi]
                 yield tuple(t[rows] for t in self.tensors)
+
+
+def data_parallel_rank(trainer: L.Trainer | None = None) -> tuple[int, int]:
+    """``(rank, world_size)`` of this process among those that split the data: the
+    trainer's ``distributed_sampler_kwargs`` (what Lightning's ``DistributedSampler``
+    would use; ``(0, 1)`` for single-device strategies), else an initialised
+    ``torch.distributed`` group, else ``(0, 1)``. Lightning never shards a
+    non-DataLoader iterable such as :class:`TensorBatches`, so the loaders do."""
+    if trainer is not None:
+        kwargs = trainer.distributed_sampler_kwargs
+        return (int(kwargs["rank"]), int(kwargs["num_replicas"])) if kwargs else (0, 1)
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
 
 
 class TrajectoryDataModule(L.LightningDataModule):
@@ -89,11 +140,12 @@ class TrajectoryDataModule(L.LightningDataModule):
     whose ``energy`` the rollout metrics use).
 
     Args:
-        batch_size: training rows per step; ``None`` trains on the whole set.
-        full_batch_steps: with ``batch_size=None``, training steps per epoch (so
-            with the paper's 2000 full-batch steps and 100 here, fit runs 20
-            epochs); mini-batch epochs are one pass over the training set.
-        seed: seeds generation and the training order.
+        batch_size: training rows per optimiser step over all processes (DDP splits
+            it, see :class:`TensorBatches`); ``None``: the whole set.
+        full_batch_steps: with ``batch_size=None``, training steps per epoch.
+        seed: seeds generation and training order; ``None`` follows the run's
+            ``seed_everything`` (``PL_GLOBAL_SEED``, else 0), so each seed draws its
+            own data set, as the reference code does.
         cache_dir: where generated data is kept (default :func:`default_cache_dir`).
         dtype: ``"float32"`` or ``"float64"``, the dtype of the tensors served.
     """
@@ -104,7 +156,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         self,
         batch_size: int | None = None,
         full_batch_steps: int = 100,
-        seed: int = 0,
+        seed: int | None = None,
         cache_dir: str | None = None,
         dtype: str = "float32",
     ) -> None:
@@ -113,7 +165,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
         self.batch_size = batch_size
         self.full_batch_steps = full_batch_steps
-        self.seed = seed
+        self.seed = int(os.environ.get("PL_GLOBAL_SEED", 0)) if seed is None else seed
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
         self.dtype = getattr(torch, dtype)
         self.data: dict[str, Tensor] | None = None
@@ -164,22 +216,38 @@ class TrajectoryDataModule(L.LightningDataModule):
         return torch.Generator().manual_seed(self.seed + offset)
 
     def train_dataloader(self) -> TensorBatches:
+        """Shuffled training batches; under data parallelism this rank's share of each
+        global batch of ``batch_size`` rows (see :class:`TensorBatches`)."""
+        rank, world = data_parallel_rank(self.trainer)
+        seed = self.seed
+        if world > 1 and self.trainer is not None:
+            seed = self.trainer.strategy.broadcast(seed)  # one permutation for all ranks
         return TensorBatches(
             (self.x_train, self.dx_train),
             self.batch_size,
             shuffle=True,
-            generator=self._generator(1),
+            generator=torch.Generator().manual_seed(seed + 1),
             repeats=self.full_batch_steps,
+            rank=rank,
+            world_size=world,
         )
 
     def val_dataloader(self) -> TensorBatches:
-        return TensorBatches((self.x_test, self.dx_test), self.batch_size)
+        """Held-out batches, sharded like training ones (torchmetrics sums over ranks,
+        so ``val/loss`` is the MSE over the whole split)."""
+        return TensorBatches((self.x_test, self.dx_test), self.batch_size, **self._ranks())
 
     def test_dataloader(self) -> TensorBatches:
-        return TensorBatches((self.x_test, self.dx_test), self.batch_size)
+        """As :meth:`val_dataloader`."""
+        return TensorBatches((self.x_test, self.dx_test), self.batch_size, **self._ranks())
 
     def predict_dataloader(self) -> TensorBatches:
+        """All held-out inputs, unsharded: rank zero holds all for the writer."""
         return TensorBatches((self.x_test,), self.batch_size)
+
+    def _ranks(self) -> dict[str, int]:
+        rank, world = data_parallel_rank(self.trainer)
+        return {"rank": rank, "world_size": world}
 
     def energy(self, y: Tensor) -> Tensor:
         """The physical energy of states ``(..., D) -> (...)`` that metrics compare."""
@@ -187,19 +255,18 @@ class TrajectoryDataModule(L.LightningDataModule):
             raise NotImplementedError(f"{type(self).__name__} defines no energy")
         return self.system.energy(y)
 
+    def reference_inputs(self, n: int | None = None) -> Tensor:
+        """The first ``n`` training inputs ``(n, D)`` (all for ``None``): the states over
+        which the spread of a learned ``H_θ`` is measured."""
+        self.setup()
+        return self.x_train[:n]
+
     def rollout_target(
         self, t_end: float | None = None, n_points: int | None = None
     ) -> tuple[Tensor, Tensor]:
-        """The true trajectories rollouts are compared with.
-
-        Starts are the clean initial states of the held-out trajectories. With
-        ``t_end=None`` the held-out trajectories themselves are returned; otherwise
-        the system's ground truth on ``linspace(t₀, t_end, n_points)`` (computed in
-        float64 once per horizon and kept).
-
-        Returns:
-            ``t (T,)`` and ``y (T, B, D)`` in the served dtype.
-        """
+        """``t (T,)``, ``y (T, B, D)``: the held-out trajectories (``t_end=None``) or the
+        system's float64 truth from their starts on ``linspace(t₀, t_end, n_points)``
+        (computed once per horizon), in the served dtype."""
         if t_end is None:
             return self.test_t, self.test_y
         key = (float(t_end), int(n_points or len(self.test_t)))

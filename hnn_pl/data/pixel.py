@@ -15,75 +15,53 @@ import torch
 from torch import Tensor
 
 from hnn_pl.data.base import TrajectoryDataModule
+from hnn_pl.systems.base import system_spec
 from hnn_pl.systems.pixel_pendulum import PixelPendulum
 
 
 class PixelPendulumData(TrajectoryDataModule):
     """Pairs of consecutive frames of gym pendulum trajectories, as the reference.
 
-    **Generation** (``generate``, cached; float64, seeded by ``seed``):
-    ``n_trajectories`` starts ``θ₀ ~ U(−max_angle, max_angle)``,
-    ``θ̇₀ ~ U(−max_omega, max_omega)`` (gym's reset repeated until
-    ``|θ| < π/6``), stepped by gym's semi-implicit Euler (``g``, ``dt``) to
-    ``n_frames`` frames (indices ``0 … n_frames − 1``). The first ``n_test``
-    ``= round(test_fraction · n_trajectories)`` trajectories are held out (the
-    reference's test split is the first 20 % of its samples, which are ordered by
-    trajectory: the first 4 000 samples = the first 40 of 200 trajectories); they
-    are continued to ``max(n_frames, rollout_frames + 1)`` frames for the rollouts,
-    and their first ``n_frames`` frames are the test split (the map is
-    deterministic, so continuing a trajectory does not change its beginning). The
-    cache holds only the angles and velocities (``theta, omega (n_trajectories,
-    n_frames)``; ``rollout_theta, rollout_omega (n_test, rollout_frames + 1)``):
-    frames are a deterministic function of ``θ``, and rendering them all in
-    ``setup`` (≈ 0.2 s) is faster than loading the ≈ 180 MB a float64 copy would
-    take, and never goes stale when the renderer changes.
+    **Generation** (cached, float64, seeded by ``seed``): ``n_trajectories`` starts
+    ``θ₀ ~ U(−max_angle, max_angle)``, ``θ̇₀ ~ U(−max_omega, max_omega)``, stepped by
+    gym's semi-implicit Euler (``g``, ``dt``) to ``n_frames`` frames. The first
+    ``n_test = round(test_fraction · n_trajectories)`` are held out (as the reference's
+    first 20 % of samples) and continued to ``max(n_frames, rollout_frames + 1)``
+    frames for the rollouts. Only ``θ, θ̇`` are cached: rendering the frames in
+    ``setup`` (≈ 0.2 s) beats loading ≈ 180 MB and never goes stale.
 
-    **Samples** (the reference's ``make_gym_dataset``): write ``P_k`` for the pair
-    (frame ``k``, frame ``k + 1``). Each trajectory gives ``n_frames − 3``
-    samples (100), the inputs ``P_1 … P_{n−3}`` and their successors
-    ``P_2 … P_{n−2}`` (the reference drops ``P_0`` when it forms frame
-    differences, and the last pair has no successor). Rows are ordered by
-    trajectory, then by time. The state of a pair is the true ``(θ, θ̇)`` of its
-    *second* frame (for gym's update ``θ_{k+1} = θ_k + θ̇_{k+1}·dt`` the pair
-    shows exactly that velocity). The reference labels the pair with the state
-    one step later (it records the observation after ``env.step``), an
-    off-by-one that only shifts its probe; it is not reproduced.
+    **Samples** (the reference's ``make_gym_dataset``): with ``P_k`` the pair (frame
+    ``k``, frame ``k + 1``), each trajectory gives ``n_frames − 3`` inputs
+    ``P_1 … P_{n−3}`` (the reference drops ``P_0``) and their successors
+    ``P_2 … P_{n−2}``, ordered by trajectory, then time. A pair's state is the true
+    ``(θ, θ̇)`` of its *second* frame (for gym's ``θ_{k+1} = θ_k + θ̇_{k+1}·dt`` the
+    pair shows exactly that velocity; the reference's label one step later is not
+    reproduced). After ``setup`` (served dtype):
 
-    After ``setup`` (served dtype):
+    - ``x_train (N_train, 1568)``: inputs ``P_k``; ``dx_train``: the **next input**
+      ``P_{k+1}`` (not a derivative); ``y_train (N_train, 2)``: ``(θ, θ̇)``.
+      Defaults: 16 000 train rows, 4 000 test rows (``x_test, dx_test, y_test``).
+    - ``test_t (R,)``: ``k·dt``, ``R = rollout_frames``; ``test_y (R, n_test, 2)``:
+      the states of ``P_k``; ``rollout_x (R, n_test, 1568)``: the pairs ``P_k``.
+    - ``theta, omega, rollout_theta, rollout_omega``: the cached float64 trajectories.
 
-    - ``x_train (N_train, 1568)``: inputs ``P_k``; ``dx_train (N_train, 1568)``:
-      the **next input** ``P_{k+1}`` (not a time derivative: the models'
-      losses compare the encodings of the two); ``y_train (N_train, 2)``:
-      ``(θ, θ̇)`` of each input's second frame. With the defaults
-      ``N_train = 16 000``.
-    - ``x_test, dx_test, y_test``: the same for the held-out trajectories (4 000).
-    - ``test_t (R,)``: rollout times ``k·dt``, ``k = 0 … R − 1``,
-      ``R = rollout_frames`` (200); ``test_y (R, n_test, 2)``: ``(θ, θ̇)`` of the
-      second frame of ``P_k``; ``rollout_x (R, n_test, 1568)``: the pairs ``P_k``
-      themselves, so ``rollout_x[0]`` is what a rollout encodes.
-    - ``theta, omega, rollout_theta, rollout_omega``: the cached trajectories, kept
-      in float64 (the held-out ones first).
-
-    Batches are ``(x, x_next)`` (``TensorBatches`` over ``x_train, dx_train``). The
-    energy that metrics compare (:meth:`energy`) takes ``(θ, θ̇)`` states:
+    Batches are ``(x, x_next)``. :meth:`energy` takes ``(θ, θ̇)`` states:
     ``α(1 − cos θ) + (c·θ̇)²`` in the reference's coordinates ``(q, p) = (θ, c·θ̇)``.
 
     Args:
         n_trajectories: number of trajectories (200).
         n_frames: frames per trajectory (103).
-        rollout_frames: rollout length in pairs (200); the held-out trajectories are
-            simulated to ``rollout_frames + 1`` frames.
+        rollout_frames: rollout length in pairs (200).
         test_fraction: share of the trajectories held out (the first ones).
         size: frame side in pixels (28).
         render_filter, supersample: passed to :func:`~hnn_pl.render.render_pendulum`.
         dt, g: gym's step and gravity.
         max_angle, max_omega: bounds of ``|θ₀|`` and ``|θ̇₀|``.
         momentum_scale: ``c`` in ``p = c·θ̇`` (0.25).
-        energy_coef: ``α`` (``None``: ``3gc²/l = 1.875``; the reference's
-            evaluation used the fitted 1.9). Not part of the cache key.
+        energy_coef: ``α`` (``None``: ``3gc²/l = 1.875``; the reference's evaluation
+            used the fitted 1.9). Not part of the cache key.
         batch_size: training rows per step (200).
-        full_batch_steps, seed, cache_dir, dtype: see
-            :class:`~hnn_pl.data.base.TrajectoryDataModule`.
+        full_batch_steps, seed, cache_dir, dtype: see :class:`TrajectoryDataModule`.
     """
 
     def __init__(
@@ -103,7 +81,7 @@ class PixelPendulumData(TrajectoryDataModule):
         energy_coef: float | None = None,
         batch_size: int | None = 200,
         full_batch_steps: int = 100,
-        seed: int = 0,
+        seed: int | None = None,
         cache_dir: str | None = None,
         dtype: str = "float32",
     ) -> None:
@@ -122,14 +100,9 @@ class PixelPendulumData(TrajectoryDataModule):
         self.n_trajectories, self.n_frames = n_trajectories, n_frames
         self.rollout_frames, self.test_fraction = rollout_frames, test_fraction
         self.size, self.render_filter, self.supersample = size, render_filter, supersample
-        self.system = PixelPendulum(
-            dt=dt,
-            g=g,
-            momentum_scale=momentum_scale,
-            energy_coef=energy_coef,
-            max_angle=max_angle,
-            max_omega=max_omega,
-        )
+        keys = ("dt", "g", "momentum_scale", "energy_coef", "max_angle", "max_omega")
+        self.system = PixelPendulum(**{k: self.hparams[k] for k in keys})
+        self.hparams["system"] = system_spec(self.system)
 
     @property
     def state_dim(self) -> int:
@@ -150,33 +123,21 @@ class PixelPendulumData(TrajectoryDataModule):
 
     def generate(self) -> dict[str, Tensor]:
         theta0, omega0 = self.system.sample_initial(self.n_trajectories, self._generator())
-        long = max(self.n_frames, self.rollout_frames + 1)
-        th_test, om_test = self.system.simulate(
-            theta0[: self.n_test], omega0[: self.n_test], long - 1
-        )
-        th_train, om_train = self.system.simulate(
-            theta0[self.n_test :], omega0[self.n_test :], self.n_frames - 1
-        )
-        n = self.n_frames
+        k, n, r = self.n_test, self.n_frames, self.rollout_frames + 1
+        th_test, om_test = self.system.simulate(theta0[:k], omega0[:k], max(n, r) - 1)
+        th_train, om_train = self.system.simulate(theta0[k:], omega0[k:], n - 1)
         return {
             "theta": torch.cat([th_test[:, :n], th_train]),
             "omega": torch.cat([om_test[:, :n], om_train]),
-            "rollout_theta": th_test[:, : self.rollout_frames + 1],
-            "rollout_omega": om_test[:, : self.rollout_frames + 1],
+            "rollout_theta": th_test[:, :r],
+            "rollout_omega": om_test[:, :r],
         }
-
-    # ------------------------------------------------------------------ assembly
 
     def render(self, theta: Tensor) -> Tensor:
         """Frames of angles ``(...)``, flattened: ``(..., size²)``, rendered in float64
         (so the served frames do not depend on the served dtype) and returned in it."""
-        frames = self.system.render(
-            theta.to(torch.float64),
-            self.size,
-            filter=self.render_filter,
-            supersample=self.supersample,
-        )
-        return frames.flatten(-2).to(self.dtype)
+        kwargs = dict(filter=self.render_filter, supersample=self.supersample)
+        return self.system.render(theta.double(), self.size, **kwargs).flatten(-2).to(self.dtype)
 
     @staticmethod
     def pairs(frames: Tensor) -> Tensor:
@@ -192,23 +153,13 @@ class PixelPendulumData(TrajectoryDataModule):
         state = torch.stack([d["theta"], d["omega"]], -1).to(self.dtype)  # (N, F, 2)
         p = self.pairs(self.render(d["theta"]))  # (N, F - 1, 1568)
         x, nx, y = p[:, 1:-1], p[:, 2:], state[:, 2:-1]  # P_k, P_{k+1}, state of frame k + 1
-
-        def rows(a: Tensor, sel: slice) -> Tensor:
-            return a[sel].reshape(-1, a.shape[-1])
-
-        test, train = slice(0, self.n_test), slice(self.n_test, None)
         served = {
-            "x_train": rows(x, train),
-            "dx_train": rows(nx, train),
-            "y_train": rows(y, train),
-            "x_test": rows(x, test),
-            "dx_test": rows(nx, test),
-            "y_test": rows(y, test),
+            f"{name}_{split}": a[sel].reshape(-1, a.shape[-1])
+            for split, sel in (("train", slice(self.n_test, None)), ("test", slice(self.n_test)))
+            for name, a in (("x", x), ("dx", nx), ("y", y))
         }
-        t, y_roll, x_roll = self._rollout_truth(
-            d["rollout_theta"], d["rollout_omega"], self.rollout_frames
-        )
-        served.update(test_t=t, test_y=y_roll, rollout_x=x_roll)
+        truth = self._rollout_truth(d["rollout_theta"], d["rollout_omega"], self.rollout_frames)
+        served.update(zip(("test_t", "test_y", "rollout_x"), truth))
         self.data = {**d, **served}  # the trajectories stay float64 (for extensions)
         for key, value in self.data.items():
             setattr(self, key, value)
@@ -221,53 +172,50 @@ class PixelPendulumData(TrajectoryDataModule):
         x = self.pairs(self.render(theta[:, : n + 1])).transpose(0, 1)
         return t.to(self.dtype), y.to(self.dtype), x.contiguous()
 
-    # ------------------------------------------------------------------ evaluation
-
     def canonical(self, y: Tensor) -> Tensor:
         """``(θ, θ̇) (..., 2) -> (q, p) = (θ, c·θ̇) (..., 2)``."""
         return self.system.to_canonical(y[..., 0], y[..., 1])
 
     def energy(self, y: Tensor) -> Tensor:
         """``α(1 − cos θ) + (c·θ̇)²`` of ``(θ, θ̇)`` states ``(..., 2) -> (...)``."""
-        return self.system.energy(self.canonical(y))
+        return self.canonical_energy(self.canonical(y))
 
-    def _extended(self, n: int) -> tuple[Tensor, Tensor, Tensor]:
-        key = ("pixel", n)
-        if key not in self._rollout_cache:
-            th0, om0 = self.rollout_theta[:, 0], self.rollout_omega[:, 0]
-            theta, omega = self.system.simulate(th0, om0, n)
-            self._rollout_cache[key] = self._rollout_truth(theta, omega, n)
-        return self._rollout_cache[key]
+    def canonical_energy(self, qp: Tensor) -> Tensor:
+        """``α(1 − cos q) + p²`` of canonical ``(q, p)`` states ``(..., 2) -> (...)``."""
+        return self.system.energy(qp)
 
-    def _n_points(self, t_end: float | None, n_points: int | None) -> int:
-        if n_points is not None:
-            return int(n_points)
-        if t_end is None:
-            return self.rollout_frames
-        return int(math.floor(t_end / self.system.dt + 1e-9)) + 1
+    def probe_data(self, n: int | None = None) -> tuple[Tensor, Tensor]:
+        """The first ``n`` training inputs ``(n, 1568)`` and their canonical ``(q, p)
+        (n, 2)``: what a linear probe ``z ↦ (q, p)`` is fitted on."""
+        self.setup()
+        return self.x_train[:n], self.canonical(self.y_train[:n])
 
     def rollout_truth(
         self, t_end: float | None = None, n_points: int | None = None
     ) -> tuple[Tensor, Tensor, Tensor]:
         """``t (T,)``, ``(θ, θ̇) (T, B, 2)`` and pairs ``(T, B, 1568)`` of the held-out
-        trajectories, ``B = n_test``.
-
-        The truth exists only on the frame grid: ``T = n_points`` if given, else
-        ``floor(t_end/dt) + 1`` if ``t_end`` is given, else ``rollout_frames``.
-        Up to the stored length the stored trajectories are sliced; longer ones are
-        simulated from the same starts and rendered (once per length, kept).
-        """
-        n = self._n_points(t_end, n_points)
+        trajectories, ``B = n_test``, on the frame grid: ``T = n_points`` if given, else
+        ``floor(t_end/dt) + 1``, else ``rollout_frames``. Longer than stored: simulated
+        from the same starts and rendered (once per length, kept)."""
+        if n_points is not None:
+            n = int(n_points)
+        elif t_end is not None:
+            n = int(math.floor(t_end / self.system.dt + 1e-9)) + 1
+        else:
+            n = self.rollout_frames
         if n < 1:
             raise ValueError(f"a rollout needs at least one point, got {n}")
         if n <= self.rollout_frames:
             return self.test_t[:n], self.test_y[:n], self.rollout_x[:n]
-        return self._extended(n)
+        key = ("pixel", n)
+        if key not in self._rollout_cache:
+            th0, om0 = self.rollout_theta[:, 0], self.rollout_omega[:, 0]
+            self._rollout_cache[key] = self._rollout_truth(*self.system.simulate(th0, om0, n), n)
+        return self._rollout_cache[key]
 
     def rollout_target(
         self, t_end: float | None = None, n_points: int | None = None
     ) -> tuple[Tensor, Tensor]:
         """``t (T,)`` and the true ``(θ, θ̇) (T, B, 2)``: see :meth:`rollout_truth`
         (whose third output, the true frame pairs, the pixel callback also uses)."""
-        t, y, _ = self.rollout_truth(t_end, n_points)
-        return t, y
+        return self.rollout_truth(t_end, n_points)[:2]

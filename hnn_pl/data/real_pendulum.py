@@ -7,6 +7,7 @@ from typing import Any
 from torch import Tensor
 
 from hnn_pl.data.base import TrajectoryDataModule
+from hnn_pl.systems.base import system_spec
 from hnn_pl.systems.real_pendulum import RealPendulum, load_real_pendulum
 
 
@@ -24,8 +25,7 @@ class RealPendulumData(TrajectoryDataModule):
     Args:
         path: a data file of the same format (``None``: the shipped copy).
         test_start, test_stop: the held-out pairs ``[test_start, test_stop)``.
-        batch_size, full_batch_steps, seed, cache_dir, dtype: see
-            :class:`~hnn_pl.data.base.TrajectoryDataModule`.
+        batch_size, full_batch_steps, seed, cache_dir, dtype: see :class:`TrajectoryDataModule`.
     """
 
     def __init__(
@@ -35,7 +35,7 @@ class RealPendulumData(TrajectoryDataModule):
         test_stop: int = 554,
         batch_size: int | None = None,
         full_batch_steps: int = 100,
-        seed: int = 0,
+        seed: int | None = None,
         cache_dir: str | None = None,
         dtype: str = "float32",
     ) -> None:
@@ -44,6 +44,7 @@ class RealPendulumData(TrajectoryDataModule):
         self.path = path
         self.test_start, self.test_stop = test_start, test_stop
         self.system = RealPendulum()
+        self.hparams["system"] = system_spec(self.system)
 
     @property
     def state_dim(self) -> int:
@@ -57,9 +58,10 @@ class RealPendulumData(TrajectoryDataModule):
         x = y[:-1]
         dx = (y[1:] - y[:-1]) / (t[1:] - t[:-1])[:, None]
         a, b = self.test_start, self.test_stop
+        train = list(range(a)) + list(range(b, len(x)))
         return {
-            "x_train": x[list(range(a)) + list(range(b, len(x)))],
-            "dx_train": dx[list(range(a)) + list(range(b, len(x)))],
+            "x_train": x[train],
+            "dx_train": dx[train],
             "x_test": x[a:b],
             "dx_test": dx[a:b],
             "test_t": t[a:b],
@@ -69,12 +71,8 @@ class RealPendulumData(TrajectoryDataModule):
     def rollout_target(
         self, t_end: float | None = None, n_points: int | None = None
     ) -> tuple[Tensor, Tensor]:
-        """The measured test segment ``(t (110,), y (110, 1, 2))``.
-
-        Raises:
-            ValueError: for ``t_end`` other than ``None``: measured data has no
-                ground truth beyond the recording.
-        """
+        """The measured test segment ``(t (110,), y (110, 1, 2))``; a ``t_end`` other than
+        ``None`` raises ``ValueError`` (no ground truth beyond the recording)."""
         if t_end is not None:
             raise ValueError("the real pendulum has no ground truth off the recording: t_end: null")
         return self.test_t, self.test_y

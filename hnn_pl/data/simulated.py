@@ -8,7 +8,7 @@ import torch
 from torch import Tensor
 
 from hnn_pl.data.base import TrajectoryDataModule
-from hnn_pl.systems.base import HamiltonianSystem
+from hnn_pl.systems.base import HamiltonianSystem, system_spec
 
 
 class SimulatedData(TrajectoryDataModule):
@@ -30,8 +30,7 @@ class SimulatedData(TrajectoryDataModule):
         noise_std: standard deviation of the input noise.
         test_fraction: share of the trajectories held out.
         test_first: hold out the first (not the last) trajectories.
-        batch_size, full_batch_steps, seed, cache_dir, dtype: see
-            :class:`TrajectoryDataModule`.
+        batch_size, full_batch_steps, seed, cache_dir, dtype: see :class:`TrajectoryDataModule`.
     """
 
     def __init__(
@@ -45,36 +44,26 @@ class SimulatedData(TrajectoryDataModule):
         test_first: bool = False,
         batch_size: int | None = None,
         full_batch_steps: int = 100,
-        seed: int = 0,
+        seed: int | None = None,
         cache_dir: str | None = None,
         dtype: str = "float32",
     ) -> None:
         super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
         self.save_hyperparameters(ignore=["system", "cache_dir"])
         self.system = system
-        self.n_trajectories = n_trajectories
+        self.hparams["system"] = system_spec(system)
+        self.n_trajectories, self.n_points, self.noise_std = n_trajectories, n_points, noise_std
         self.t_span = tuple(float(t) for t in t_span)
-        self.n_points = n_points
-        self.noise_std = noise_std
-        self.test_fraction = test_fraction
-        self.test_first = test_first
+        self.test_fraction, self.test_first = test_fraction, test_first
 
     @property
     def state_dim(self) -> int:
         return self.system.state_dim
 
     def cache_params(self) -> dict[str, Any]:
-        return {
-            "system": type(self.system).__name__,
-            "system_params": vars(self.system),
-            "n_trajectories": self.n_trajectories,
-            "t_span": self.t_span,
-            "n_points": self.n_points,
-            "noise_std": self.noise_std,
-            "test_fraction": self.test_fraction,
-            "test_first": self.test_first,
-            "seed": self.seed,
-        }
+        names = ("n_trajectories", "t_span", "n_points", "noise_std", "test_fraction", "test_first")
+        params = {name: getattr(self, name) for name in (*names, "seed")}
+        return {"system": system_spec(self.system), **params}
 
     def generate(self) -> dict[str, Tensor]:
         g = self._generator()

@@ -2,31 +2,29 @@
 
 from __future__ import annotations
 
-import lightning as L
-import torch
 from torch import Tensor, nn
 from torchmetrics import MeanSquaredError
 
-from hnn_pl.integrate import odeint
+from hnn_pl.models.recipe import RecipeModel
 
 
-class DynamicsModel(L.LightningModule):
+class DynamicsModel(RecipeModel):
     """A LightningModule that learns ``dy/dt = f_θ(y)`` from ``(y, dy/dt)`` pairs.
 
-    Subclasses implement :meth:`build_field`, returning a plain module with
-    ``vector_field(t, y)``, built on the paper's MLP. Loss:
-    ``mean((f_θ(y) − dy/dt)²)`` over batch and dimensions; Adam.
-
-    Batches are ``(y, dydt)``, both ``(batch, 2k)``. Logs ``train/loss`` every step
-    and ``val/loss``, ``test/loss`` as the MSE over the whole split (torchmetrics).
+    Subclasses implement :meth:`build_field`; ``field`` (public) is the plain module it
+    returns, with ``vector_field(t, y)`` (and ``hamiltonian(y)`` for an HNN): what
+    rollouts integrate. Batches are ``(y, dydt)``, both ``(batch, 2k)``; the loss is
+    ``mean((f_θ(y) − dy/dt)²)``. Logs ``train/loss`` every step and ``val/loss``,
+    ``test/loss`` as the MSE over the whole split (torchmetrics).
 
     Args:
         input_dim: ``2k``, the state size (linked from the DataModule by the CLI).
         hidden_dim: ``h``, the MLP's width (200 in the paper).
         n_hidden: number of hidden layers (2).
         activation: hidden nonlinearity (``"tanh"``).
-        lr: Adam learning rate (1e-3).
-        weight_decay: Adam weight decay (task-dependent, see the configs).
+        lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip,
+            on_nonfinite: the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`;
+            the paper's: Adam, constant rate).
     """
 
     def __init__(
@@ -37,8 +35,20 @@ class DynamicsModel(L.LightningModule):
         activation: str = "tanh",
         lr: float = 1e-3,
         weight_decay: float = 0.0,
+        optimizer: str = "adam",
+        schedule: str = "constant",
+        warmup_steps: int = 0,
+        inner_steps: int = 1,
+        grad_clip: float | None = None,
+        on_nonfinite: str = "stop",
     ) -> None:
-        super().__init__()
+        recipe = (lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip)
+        super().__init__(*recipe, on_nonfinite)
+        if input_dim < 2 or input_dim % 2 or hidden_dim < 1 or n_hidden < 1:
+            raise ValueError(
+                "input_dim must be even and >= 2 (y = (q, p)), hidden_dim and n_hidden >= 1; "
+                f"got input_dim={input_dim}, hidden_dim={hidden_dim}, n_hidden={n_hidden}"
+            )
         self.save_hyperparameters()
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
         self.val_mse = MeanSquaredError()
@@ -58,18 +68,16 @@ class DynamicsModel(L.LightningModule):
         return self.field.vector_field(None, y)
 
     def rollout(self, y0: Tensor, t: Tensor, method: str = "dopri5", **kwargs) -> Tensor:
-        """Integrate the learned field: ``y0 (batch, 2k)``, ``t (T,)`` -> ``(T, batch, 2k)``.
+        """Integrate the learned field in the model's dtype: ``y0 (batch, 2k)``, ``t (T,)``
+        -> ``(T, batch, 2k)``; ``kwargs`` go to :func:`hnn_pl.odeint`. For energies and
+        ``H_θ`` as well, use :func:`hnn_pl.rollout`."""
+        from hnn_pl.rollouts import rollout
 
-        Runs without recording gradients; ``kwargs`` go to :func:`hnn_pl.odeint`.
-        """
-        with torch.no_grad():
-            return odeint(self.field.vector_field, y0, t, method=method, **kwargs)
+        return rollout(self, y0, t, method=method, dtype="model", **kwargs).y
 
-    def training_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+    def training_loss(self, batch: tuple[Tensor, Tensor]) -> dict[str, Tensor]:
         y, dydt = batch
-        loss = nn.functional.mse_loss(self(y), dydt)
-        self.log("train/loss", loss, prog_bar=True)
-        return loss
+        return {"loss": nn.functional.mse_loss(self(y), dydt)}
 
     def validation_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> None:
         y, dydt = batch
@@ -84,8 +92,3 @@ class DynamicsModel(L.LightningModule):
     def predict_step(self, batch: tuple[Tensor, ...], batch_idx: int) -> Tensor:
         """The predicted ``dy/dt`` of the batch's states, ``(batch, 2k)``."""
         return self(batch[0])
-
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(
-            self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay
-        )

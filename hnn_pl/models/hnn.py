@@ -11,11 +11,9 @@ from hnn_pl.nets import MLP, HamiltonianField
 class HNN(DynamicsModel):
     """``dy/dt = J∇H_θ(y) = (∂H_θ/∂p, −∂H_θ/∂q)``, ``H_θ = MLP(y): 2k → h → h → 1``.
 
-    The loss compares ``J∇H_θ`` with the target ``dy/dt``. For the tanh MLP the
-    input gradient is computed in closed form, so training needs one ordinary
-    backward pass and evaluation works under ``torch.inference_mode``; other
-    activations fall back to autograd. Arguments as
-    :class:`~hnn_pl.models.base.DynamicsModel`.
+    For the tanh MLP ``∇H_θ`` is closed-form: one ordinary backward pass in training,
+    evaluation under ``torch.inference_mode``; other activations use autograd.
+    Arguments as :class:`~hnn_pl.models.base.DynamicsModel`.
     """
 
     def build_field(

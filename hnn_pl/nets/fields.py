@@ -46,12 +46,9 @@ class HamiltonianField(nn.Module):
         """``H_θ(y)``: ``(batch, 2k) -> (batch,)``."""
         return self.net(y)[..., 0]
 
-    def _has_closed_form(self) -> bool:
-        return self.closed_form and getattr(self.net, "activation", None) == "tanh"
-
     def value_and_grad(self, y: Tensor) -> tuple[Tensor, Tensor]:
         """``H_θ(y) (batch,)`` and ``∇H_θ(y) (batch, 2k)``."""
-        if self._has_closed_form():
+        if self.closed_form and getattr(self.net, "activation", None) == "tanh":
             return self.net.value_and_input_grad(y)
         record = torch.is_grad_enabled() and not torch.is_inference_mode_enabled()
         with torch.inference_mode(False), torch.enable_grad():

@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor, nn
 
 _ACTIVATIONS = {"tanh": torch.tanh, "relu": torch.relu, "softplus": nn.functional.softplus}
+
+
+def activation_fn(name: str, table: dict[str, Callable] = _ACTIVATIONS) -> Callable:
+    """``table[name]``, or a ValueError listing the valid names."""
+    if name not in table:
+        raise ValueError(f"activation must be one of {sorted(table)}, got {name!r}")
+    return table[name]
 
 
 class MLP(nn.Module):
@@ -31,15 +40,11 @@ class MLP(nn.Module):
         activation: str = "tanh",
     ) -> None:
         super().__init__()
-        if activation not in _ACTIVATIONS:
-            raise ValueError(
-                f"activation must be one of {sorted(_ACTIVATIONS)}, got {activation!r}"
-            )
+        self._act = activation_fn(activation)
         dims = [input_dim] + [hidden_dim] * n_hidden
         self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         self.out = nn.Linear(hidden_dim, output_dim, bias=False)
         self.activation = activation
-        self._act = _ACTIVATIONS[activation]
         for layer in [*self.hidden, self.out]:
             nn.init.orthogonal_(layer.weight)
 
@@ -56,16 +61,8 @@ class MLP(nn.Module):
         ``∇ₓ f = W₁ᵀ[(1 − h₁²) ⊙ W₂ᵀ[(1 − h₂²) ⊙ … w]]``, a few matrix products and
         no autograd graph of a graph, so a training loss on ``∇f`` needs only one
         ordinary backward pass, and the gradient is available under
-        ``torch.inference_mode``.
-
-        Args:
-            x: ``(batch, d)``.
-
-        Returns:
-            ``f (batch,)`` and ``∇ₓ f (batch, d)``.
-
-        Raises:
-            NotImplementedError: for activations other than ``tanh``.
+        ``torch.inference_mode``. ``x (batch, d)`` -> ``f (batch,)``, ``∇ₓ f (batch, d)``;
+        NotImplementedError for activations other than ``tanh``.
         """
         if self.activation != "tanh":
             raise NotImplementedError("closed-form input gradient is implemented for tanh only")

@@ -21,6 +21,35 @@ def symplectic_gradient(grad_h: Tensor) -> Tensor:
     return torch.cat([dh_dp, -dh_dq], dim=-1)
 
 
+def system_spec(system: object) -> dict:
+    """``{"class_path": "module.Class", "init_args": {…}}`` of a system: its full import
+    path (the data cache keys on it) and its parameters, JSON-ready."""
+    cls = type(system)
+    params = {
+        k: list(v) if isinstance(v, tuple) else v
+        for k, v in vars(system).items()
+        if not k.startswith("_")
+    }
+    return {"class_path": f"{cls.__module__}.{cls.__qualname__}", "init_args": params}
+
+
+def unit_and_radius(
+    n: int, radius: tuple[float, float], generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """The reference's draw of a point in an annulus, float64: a direction ``(n, 2)``,
+    ``U[-1, 1]²`` normalised (not uniform in angle), and a radius ``(n, 1)``,
+    ``U[r_min, r_max]``."""
+    d = torch.rand(n, 2, generator=generator, dtype=torch.float64) * 2 - 1
+    r = torch.rand(n, 1, generator=generator, dtype=torch.float64)
+    return d / d.norm(dim=-1, keepdim=True), r * (radius[1] - radius[0]) + radius[0]
+
+
+def sample_annulus(n: int, radius: tuple[float, float], generator: torch.Generator) -> Tensor:
+    """States ``(n, 2)``: :func:`unit_and_radius`'s direction times its radius."""
+    u, r = unit_and_radius(n, radius, generator)
+    return u * r
+
+
 class HamiltonianSystem(ABC):
     """A conservative system ``dy/dt = J ∇H(y)`` with a known ``H``.
 
@@ -61,12 +90,8 @@ class HamiltonianSystem(ABC):
         return None
 
     def trajectory(self, y0: Tensor, t: Tensor) -> Tensor:
-        """Ground truth ``y(t)``, shape ``(T, n, 2k)``, computed in float64.
-
-        The closed form where there is one, otherwise adaptive ``dopri5`` with
-        per-trajectory error control at ``rtol``/``atol`` of the system. The result
-        is returned in ``y0``'s dtype.
-        """
+        """Ground truth ``y(t) (T, n, 2k)`` in ``y0``'s dtype, computed in float64: the
+        closed form where there is one, else ``dopri5`` at the system's ``rtol``/``atol``."""
         y64, t64 = y0.to(torch.float64), t.to(torch.float64)
         out = self.exact_solution(t64, y64)
         if out is None:

@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from hnn_pl.systems.base import HamiltonianSystem
+from hnn_pl.systems.base import HamiltonianSystem, sample_annulus
 
 
 class MassSpring(HamiltonianSystem):
@@ -19,8 +19,7 @@ class MassSpring(HamiltonianSystem):
     direction in the (q, p) plane and a radius ``r ~ U[r_min, r_max]``.
 
     Args:
-        alpha: coefficient of ``q²``.
-        beta: coefficient of ``p²``.
+        alpha, beta: coefficients of ``q²`` and ``p²``.
         radius: ``(r_min, r_max)`` of the initial states' radius.
     """
 
@@ -50,12 +49,3 @@ class MassSpring(HamiltonianSystem):
         c, sn = torch.cos(w * t)[:, None], torch.sin(w * t)[:, None]
         q0, p0 = y0[..., 0], y0[..., 1]
         return torch.stack([q0 * c + p0 / s * sn, p0 * c - s * q0 * sn], dim=-1)
-
-
-def sample_annulus(n: int, radius: tuple[float, float], generator: torch.Generator) -> Tensor:
-    """States ``(n, 2)`` in float64: direction of ``U[-1, 1]²`` normalised (as the
-    reference code draws it), radius ``U[r_min, r_max]``."""
-    d = torch.rand(n, 2, generator=generator, dtype=torch.float64) * 2 - 1
-    r = torch.rand(n, 1, generator=generator, dtype=torch.float64)
-    r = r * (radius[1] - radius[0]) + radius[0]
-    return d / d.norm(dim=-1, keepdim=True) * r

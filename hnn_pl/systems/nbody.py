@@ -2,55 +2,34 @@
 
 State layout (this project's convention, **per body interleaved**)::
 
-    y = cat([q, p], -1),   q = (x_1, y_1, x_2, y_2, …, x_n, y_n),
-                           p = (px_1, py_1, px_2, py_2, …, px_n, py_n),
+    y = cat([q, p], -1),   q = (x_1, y_1, …, x_n, y_n),   p = (px_1, py_1, …, px_n, py_n),
 
-with ``p_i = m_i v_i`` the canonical momentum, so ``y`` has ``4n`` entries and
-``q.reshape(..., n, 2)[..., i, :]`` is body ``i``'s position.
-
-The reference code (greydanus/hamiltonian-nn) orders its coordinates by component
-instead, ``[qx_1..qx_n, qy_1..qy_n, px_1..px_n, py_1..py_n]``, and its ``p`` entries are
-velocities (equal to momenta there because every mass is 1).
-:func:`to_reference_order` / :func:`from_reference_order` convert between the two
-orders (they only permute; they do not divide by masses).
+with ``p_i = m_i v_i`` the canonical momentum, so ``q.reshape(..., n, 2)[..., i, :]`` is
+body ``i``'s position. The reference (greydanus/hamiltonian-nn) orders by component,
+``[qx_1..qx_n, qy_1..qy_n, px_1..px_n, py_1..py_n]``, with velocities as ``p`` (every mass
+is 1 there); :func:`to_reference_order` / :func:`from_reference_order` only permute.
 
 Hamiltonian (``G`` and the masses ``m_i`` configurable, defaults 1 as the reference)::
 
     H(q, p) = Σ_i |p_i|² / (2 m_i)  −  Σ_{i<j} G m_i m_j / |q_i − q_j|
 
-and Hamilton's equations ``dq_i/dt = p_i / m_i``,
-``dp_i/dt = Σ_{j≠i} G m_i m_j (q_j − q_i) / |q_j − q_i|³``.
-
-Initial states of the generic :class:`NBody` follow the reference's three-body
-``random_config`` generalised to ``n`` equal masses on a ring (exactly the reference
-for ``n = 3``); :class:`~hnn_pl.systems.two_body.TwoBody` overrides them with the
-reference's two-body sampler. The draws reproduce the reference's *distribution*
-with ``torch`` (not numpy's random stream), vectorised over the orbits.
-
-Ground-truth tolerances: the reference integrates with scipy's RK45 at ``rtol = 1e-9``
-and scipy's default ``atol = 1e-6``; for states of order one the ``atol`` dominates, so
-its data are only ~1e-4 accurate (SPEC quirk 5). We keep the base-class dopri5 tolerances
-``rtol = atol = 1e-10``: error control 10× tighter than the reference's nominal ``rtol``
-and 10⁴× tighter than its effective ``atol``. Measured on the paper's data sets (seed 0;
-1000 two-body orbits, t ∈ [0, 20], 50 points; 5000 three-body orbits, t ∈ [0, 5], 20
-points), against a run at ``1e-13``:
+Ground-truth tolerances: the reference's scipy RK45 at ``rtol = 1e-9`` and the default
+``atol = 1e-6`` is only ~1e-4 accurate for states of order one (SPEC quirk 5); we keep
+the base class's ``rtol = atol = 1e-10``. Our dopri5 (the Dormand-Prince pair and RMS
+norm of scipy's RK45) against a run at ``1e-13`` on the paper's data sets (seed 0; 1000
+two-body orbits, t ∈ [0, 20], 50 points; 5000 three-body orbits, t ∈ [0, 5], 20 points):
 
 ===============================  ==================  ==================
 max |state error|                two-body            three-body
 ===============================  ==================  ==================
 ``rtol = atol = 1e-10``          2e-8 (median 2e-9)  5e-7 (median 2e-9)
-reference 1e-9 / 1e-6 [*]_       1e-3 (median 1e-4)  2e-2 (median 9e-5)
+reference's 1e-9 / 1e-6          1e-3 (median 1e-4)  2e-2 (median 9e-5)
 ===============================  ==================  ==================
 
-.. [*] our dopri5 at the reference's ``rtol = 1e-9``, ``atol = 1e-6`` (scipy's RK45 is
-   the same Dormand-Prince pair with the same RMS error norm).
-
-With ``1e-10`` the relative drift of ``H`` is at most 4e-9 / 6e-9 and that of the angular
-momentum 2e-9 / 7e-10 (total momentum: rounding only). The batched solve costs ~105–135 accepted
-and rejected steps per orbit (0.5 s / 1.4 s on 2 CPU cores); ``1e-12`` would cost ~2.5×.
-Three-body close encounters stay mild at these horizons: the smallest pair distance
-over all 5000 orbits is 0.048 (scipy RK45 per orbit at 1e-10, all steps inspected; the
-hardest orbit takes 498 steps, the median 90), so the sampler needs no rejection of
+At ``1e-10`` the relative drift of ``H`` is at most 4e-9 / 6e-9, of the angular momentum
+2e-9 / 7e-10, at ~105–135 attempted steps per orbit (0.5 s / 1.4 s on 2 CPU cores;
+``1e-12`` would cost ~2.5×). The smallest three-body pair distance over all 5000 orbits
+is 0.048 (hardest orbit 498 steps, median 90): the sampler needs no rejection of
 near-collisions.
 """
 
@@ -62,7 +41,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from hnn_pl.systems.base import HamiltonianSystem
+from hnn_pl.systems.base import HamiltonianSystem, unit_and_radius
 
 
 def to_reference_order(y: Tensor) -> Tensor:
@@ -90,26 +69,15 @@ class NBody(HamiltonianSystem):
     """``n`` point masses in 2-D under Newtonian gravity (see the module docstring).
 
     Initial states (:meth:`sample_initial`), the reference's three-body ``random_config``
-    for ``n`` equal masses ``m``::
-
-        p1 = 2*np.random.rand(2) - 1                              # direction (not uniform
-        r = np.random.rand() * (max_radius-min_radius) + min_radius  # in angle: normalised
-        p1 *= r/np.sqrt( np.sum((p1**2)) )                          # square)
-        p2 = rotate2d(p1, theta=2*np.pi/3); p3 = rotate2d(p2, theta=2*np.pi/3)
-        v1 = rotate2d(p1, theta=np.pi/2)
-        v1 = v1 / r**1.5
-        v1 = v1 * np.sqrt(np.sin(np.pi/3)/(2*np.cos(np.pi/6)**2))  # = 3^(-1/4)
-        v2 = rotate2d(v1, theta=2*np.pi/3); v3 = rotate2d(v2, theta=2*np.pi/3)
-        v1 *= 1 + nu*(2*np.random.rand(2) - 1)                     # per body, per component
-        ...
-
-    i.e. body ``k`` at ``q_k = R(2πk/n) q_0`` on a circle of radius ``r ~ U[r_min, r_max]``
-    (centre of mass exactly 0), velocity ``R(π/2) q_k · √(G m S_n / 4) / r^{3/2}`` with
+    (``experiment-3body/data.py``) for ``n`` equal masses ``m``: body ``k`` at
+    ``q_k = R(2πk/n) q_0`` on a circle of radius ``r ~ U[r_min, r_max]``, ``q_0`` along a
+    normalised ``U[−1, 1]²`` draw (not uniform in angle; centre of mass exactly 0),
+    velocity ``R(π/2) q_k · √(G m S_n / 4) / r^{3/2}`` with
     ``S_n = Σ_{k=1}^{n-1} 1/sin(πk/n)`` (the circular-orbit speed of a regular n-gon;
-    ``S_3/4 = 1/√3``, the reference's constant), every velocity component then multiplied
-    by ``1 + ν·U(−1, 1)`` independently, and ``p = m v``. All orbits turn counter-clockwise.
-    The noise does *not* keep the total momentum at zero (the centre of mass drifts), as in
-    the reference.
+    ``√(S_3/4) = 3^(-1/4)``, the reference's constant), every velocity component then
+    multiplied by ``1 + ν·U(−1, 1)`` independently, and ``p = m v``. All orbits turn
+    counter-clockwise; as in the reference, the noise does *not* keep the total momentum
+    at zero. The reference's *distribution*, drawn with ``torch``, not numpy's stream.
 
     Args:
         n_bodies: number of bodies ``n``.
@@ -118,10 +86,6 @@ class NBody(HamiltonianSystem):
         orbit_noise: ``ν`` of the velocity perturbation.
         radius: ``(r_min, r_max)`` of the ring radius.
     """
-
-    #: float64 ground-truth tolerances: see the module docstring.
-    rtol = 1e-10
-    atol = 1e-10
 
     def __init__(
         self,
@@ -152,7 +116,6 @@ class NBody(HamiltonianSystem):
         inc[j, torch.arange(len(i))] = -1.0
         self._inc = inc
 
-    # ----------------------------------------------------------------- helpers
     def split(self, y: Tensor) -> tuple[Tensor, Tensor]:
         """``y (..., 4n)`` → positions and momenta, each ``(..., n, 2)``."""
         q, p = y.chunk(2, dim=-1)
@@ -171,7 +134,6 @@ class NBody(HamiltonianSystem):
         q, _ = self.split(y)
         return (q[..., self._pair_j, :] - q[..., self._pair_i, :]).norm(dim=-1)
 
-    # ----------------------------------------------------------------- physics
     def hamiltonian(self, y: Tensor) -> Tensor:
         """``Σ |p_i|²/(2 m_i) − Σ_{i<j} G m_i m_j / |q_i − q_j|``, shape ``(...)``."""
         m, gmm, _ = self._consts(y)
@@ -205,7 +167,6 @@ class NBody(HamiltonianSystem):
         q, _ = self.split(y)
         return (m[:, None] * q).sum(-2) / m.sum()
 
-    # ---------------------------------------------------------------- sampling
     def _equal_mass(self) -> float:
         if len(set(self.masses)) != 1:
             raise ValueError("the reference initial-state distribution needs equal masses")
@@ -215,10 +176,8 @@ class NBody(HamiltonianSystem):
         """``n`` states ``(n, 4·n_bodies)`` float64 from the ring distribution (class doc)."""
         m, k = self._equal_mass(), self.n_bodies
         f64 = torch.float64
-        d = torch.rand(n, 2, generator=generator, dtype=f64) * 2 - 1
-        r = torch.rand(n, 1, generator=generator, dtype=f64)
-        r = r * (self.radius[1] - self.radius[0]) + self.radius[0]
-        q0 = d / d.norm(dim=-1, keepdim=True) * r  # (n, 2)
+        u, r = unit_and_radius(n, self.radius, generator)
+        q0 = u * r  # (n, 2)
         angles = 2 * math.pi / k * torch.arange(k, dtype=f64)  # (k,)
         q = rotate2d(q0[:, None, :], angles)  # (n, k, 2)
         s_n = sum(1 / math.sin(math.pi * j / k) for j in range(1, k))

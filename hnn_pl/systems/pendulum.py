@@ -5,8 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hnn_pl.systems.base import HamiltonianSystem
-from hnn_pl.systems.mass_spring import sample_annulus
+from hnn_pl.systems.base import HamiltonianSystem, sample_annulus
 
 
 class Pendulum(HamiltonianSystem):
@@ -17,8 +16,7 @@ class Pendulum(HamiltonianSystem):
     Initial states: uniform direction, radius ``U[1.3, 2.3]`` as the reference.
 
     Args:
-        alpha: coefficient of ``1 − cos q``.
-        beta: coefficient of ``p²``.
+        alpha, beta: coefficients of ``1 − cos q`` and ``p²``.
         radius: ``(r_min, r_max)`` of the initial states' radius in the (q, p) plane.
     """
 

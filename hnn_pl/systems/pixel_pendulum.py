@@ -1,25 +1,19 @@
 """Pixel pendulum (paper task 5): gym Pendulum-v0's dynamics, batched, and its energy.
 
 The reference (``experiment-pixels/data.py``) steps gym's ``Pendulum-v0`` with zero
-torque. The gym code of that era (``gym/envs/classic_control/pendulum.py``)::
+torque (``gym/envs/classic_control/pendulum.py`` of that era)::
 
     newthdot = thdot + (-3*g/(2*l) * np.sin(th + np.pi) + 3./(m*l**2)*u) * dt
     newth = th + newthdot*dt
     newthdot = np.clip(newthdot, -self.max_speed, self.max_speed)   # max_speed = 8
-    self.state = np.array([newth, newthdot])
 
 with ``th = 0`` upright, ``g = 10``, ``m = l = 1``, ``dt = 0.05``; ``reset`` draws
-``(th, thdot) ~ U([−π, π] × [−1, 1])``. The reference converts the observation
-``(cos th, sin th, thdot)`` with ``get_theta`` to ``θ = th − π`` wrapped into
-``(−π, π]`` (0 hanging down, same sense of rotation) and keeps ``thdot``.
-
-This module uses that hanging angle ``θ``, ``θ > 0`` swinging the rod to the right
-of the image (see :func:`hnn_pl.render.render_pendulum`). With ``th = θ + π``, gym's
-``−(3g/2l)·sin(th + π)`` is ``−(3g/2l)·sin θ``, so the update reads
-``ω ← ω − (3g/2l)·sin θ·dt``. ``PixelPendulum`` is not a
-:class:`~hnn_pl.systems.base.HamiltonianSystem`: its ground truth is a fixed-step
-map (not an ODE integrated to tolerance), its observations are frames, and its
-``(q, p)`` obey Hamilton's equations of ``2H``, not of the ``H`` it reports.
+``(th, thdot) ~ U([−π, π] × [−1, 1])``. The reference's ``get_theta`` turns the
+observation into ``θ = th − π`` wrapped into ``(−π, π]`` (0 hanging down, same sense of
+rotation; ``θ > 0``: rod to the image's right, see :func:`hnn_pl.render.render_pendulum`).
+This module uses that ``θ``, in which gym's ``sin(th + π)`` is ``sin θ``. ``PixelPendulum``
+is not a :class:`~hnn_pl.systems.base.HamiltonianSystem`: its ground truth is a
+fixed-step map, not an ODE integrated to tolerance, and its observations are frames.
 """
 
 from __future__ import annotations
@@ -53,28 +47,20 @@ def simulate_gym_pendulum(
 ) -> tuple[Tensor, Tensor]:
     """Gym Pendulum-v0's semi-implicit Euler, batched over any shape of starts.
 
-    Per step, exactly gym's order (``θ = 0`` hanging, ``u = clip(torque, ±max_torque)``):
-
-    1. ``ω' = ω + (−(3g/2l)·sin θ + 3/(m l²)·u)·dt``
-    2. ``θ' = θ + ω'·dt`` (with the *unclipped* ``ω'``)
-    3. ``ω' ← clip(ω', −max_speed, max_speed)``
-
-    Gym's internal angle is never normalised (``angle_normalize`` only enters its
-    reward), so by default neither is ``θ`` here; ``wrap=True`` returns it in
-    ``[−π, π)`` as the reference's ``get_theta`` does (into ``(−π, π]``) for the
-    observations (the two
-    differ only once the pendulum turns over, impossible for the task's starts).
-    Later gym (Pendulum-v1 after the rewrite) clips before the ``θ`` update; the two
-    agree while ``|ω| ≤ max_speed``, always the case here (``|ω| < 2.5``).
+    Per step, in gym's order (``θ = 0`` hanging, ``u = clip(torque, ±max_torque)``):
+    ``ω' = ω + (−(3g/2l)·sin θ + 3/(m l²)·u)·dt``, ``θ' = θ + ω'·dt`` (the *unclipped*
+    ``ω'``), then ``ω' ← clip(ω', ±max_speed)`` (Pendulum-v1 clips first: the same while
+    ``|ω| ≤ max_speed``, always here, ``|ω| < 2.5``). Gym never normalises its angle, so
+    by default neither does this; ``wrap=True`` returns ``θ`` in ``[−π, π)`` like the
+    reference's ``get_theta`` (``(−π, π]``: the same unless the pendulum turns over).
 
     Args:
         theta0: initial angles, shape ``(...)``.
         omega0: initial angular velocities ``θ̇``, broadcastable with ``theta0``.
         n_steps: number of steps.
         dt, g, l, m: gym's constants.
-        max_speed: gym's clip of ``ω`` (8).
+        max_speed, max_torque: gym's clips of ``ω`` (8) and ``u`` (2).
         torque: constant torque ``u`` (the task uses 0).
-        max_torque: gym's clip of ``u`` (2).
         wrap: normalise the returned angles into ``[−π, π)``.
 
     Returns:
@@ -103,29 +89,24 @@ def simulate_gym_pendulum(
 class PixelPendulum:
     """The pixel pendulum's ground truth: gym dynamics, energy, frames.
 
-    Coordinates: ``θ`` hanging angle (0 down, ``θ > 0`` to the right of the image),
-    ``ω = θ̇``. The reference's "canonical" coordinates are
-    ``(q, p) = (θ, c·θ̇)`` with ``c = 0.25`` (``momentum_scale``), chosen, in the
-    reference's words, so that ``H = PE + KE·c`` "is as close to constant as
-    possible". With ``θ̈ = −(3g/2l) sin θ`` the conserved energy is proportional to
-    ``(3g/2l)(1 − cos θ) + θ̇²/2``; multiplied by ``2c²`` it reads
-    ``α (1 − cos q) + p²`` with ``α = 3gc²/l = 1.875``: the default
-    ``energy_coef``. The reference's evaluation uses the fitted ``α = 1.9``
-    (``hamiltonian_fn`` in ``experiment-pixels/data.py``), pass
-    ``energy_coef=1.9`` for it. (In continuous time these ``(q, p)`` obey Hamilton's
-    equations of ``2H``, not ``H``: ``dq/dt = 4p``, ``dp/dt = −3.75 sin q``; ``H`` is
-    conserved all the same.)
+    ``θ`` is the hanging angle (module docstring), ``ω = θ̇``. The reference's
+    "canonical" coordinates are ``(q, p) = (θ, c·θ̇)`` with ``c = 0.25``
+    (``momentum_scale``), chosen, in its words, so that ``H = PE + KE·c`` "is as close to
+    constant as possible". With ``θ̈ = −(3g/2l) sin θ`` the conserved energy is
+    proportional to ``(3g/2l)(1 − cos θ) + θ̇²/2``; times ``2c²`` it reads
+    ``α (1 − cos q) + p²`` with ``α = 3gc²/l = 1.875``, the default ``energy_coef``
+    (the reference's evaluation fits ``α = 1.9``: pass ``energy_coef=1.9``). In
+    continuous time these ``(q, p)`` obey Hamilton's equations of ``2H``:
+    ``dq/dt = 4p``, ``dp/dt = −3.75 sin q``; ``H`` is conserved all the same.
 
-    Initial states as the reference: gym's ``reset`` (``θ ~ U(−π, π)``,
-    ``θ̇ ~ U(−1, 1)``) repeated until ``|θ| < max_angle = π/6``, which is the same as
-    ``θ ~ U(−π/6, π/6)``, ``θ̇ ~ U(−1, 1)`` independently.
+    Initial states as the reference: gym's ``reset`` repeated until
+    ``|θ| < max_angle = π/6``, i.e. ``θ ~ U(−π/6, π/6)``, ``θ̇ ~ U(−1, 1)`` independently.
 
     Args:
         dt, g, l, m, max_speed: gym's constants.
         momentum_scale: ``c`` in ``p = c·θ̇``.
         energy_coef: ``α`` of ``α(1 − cos q) + p²``; default ``3gc²/l`` (1.875).
-        max_angle: bound of ``|θ₀|``.
-        max_omega: bound of ``|θ̇₀|``.
+        max_angle, max_omega: bounds of ``|θ₀|`` and ``|θ̇₀|``.
     """
 
     def __init__(

@@ -8,6 +8,7 @@ time, angle ``θ`` and angular velocity ``θ̇``, used as ``(q, p)``.
 from __future__ import annotations
 
 from importlib import resources
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -18,21 +19,12 @@ DATA_FILE = "real_pend_h_1.txt"
 
 
 def load_real_pendulum(path: str | None = None) -> tuple[Tensor, Tensor]:
-    """Read the measured trajectory (float64).
-
-    The file has a header line ``%o v`` and rows ``trial t θ θ̇``.
-
-    Args:
-        path: a file of that format; ``None`` reads the copy shipped in the package.
-
-    Returns:
-        ``t (556,)`` and ``y = (θ, θ̇)`` of shape ``(556, 2)``.
-    """
+    """``t (556,)`` and ``y = (θ, θ̇) (556, 2)``, float64, from ``path`` (``None``: the
+    packaged copy), a file with a header line ``%o v`` and rows ``trial t θ θ̇``."""
     if path is None:
         text = resources.files("hnn_pl.data").joinpath(DATA_FILE).read_text()
     else:
-        with open(path) as f:
-            text = f.read()
+        text = Path(path).read_text()
     rows = [line.split() for line in text.splitlines()[1:] if line.strip()]
     table = torch.tensor([[float(v) for v in row] for row in rows], dtype=torch.float64)
     return table[:, 1].clone(), table[:, 2:4].clone()
@@ -41,12 +33,10 @@ def load_real_pendulum(path: str | None = None) -> tuple[Tensor, Tensor]:
 class RealPendulum(Pendulum):
     """Energy ``E = 2.4 (1 − cos q) + p²`` of the measured pendulum, for evaluation only.
 
-    The coefficient 2.4 is the reference code's *fit* to the data, not a measured
-    constant, and the real pendulum loses energy to friction: its trajectories do
-    not conserve ``E`` exactly, which is the limitation the paper states for HNNs
-    (they learn a conserved quantity by construction). The dynamics come from the
-    data (:func:`load_real_pendulum`); this class provides ``energy`` and the
-    ``H`` of that fitted ideal pendulum.
+    2.4 is the reference code's *fit* to the data, not a measured constant, and the real
+    pendulum loses energy to friction, so ``E`` is not exactly conserved: the limitation
+    the paper states for HNNs. The dynamics come from the data
+    (:func:`load_real_pendulum`); this class gives ``energy`` and the fitted ``H``.
     """
 
     def __init__(self, alpha: float = 2.4, beta: float = 1.0) -> None:

@@ -11,26 +11,15 @@ from hnn_pl.systems.nbody import NBody
 
 
 class TwoBody(NBody):
-    """Two bodies under Newtonian gravity; state layout of :mod:`hnn_pl.systems.nbody`
-    (``y = (x_1, y_1, x_2, y_2, px_1, py_1, px_2, py_2)``).
+    """Two bodies under Newtonian gravity (state layout of :mod:`hnn_pl.systems.nbody`).
 
     Initial states as the reference's two-body ``random_config``
-    (``experiment-orbits/data.py``, published as ``experiment-2body/data.py``)::
-
-        pos = np.random.rand(2) * (max_radius-min_radius) + min_radius
-        r = np.sqrt( np.sum((pos**2)) )
-        vel = np.flipud(pos) / (2 * r**1.5)
-        vel[0] *= -1
-        vel *= 1 + orbit_noise*np.random.randn()
-        state[:,1:3] = pos
-        state[:,3:5] = vel
-        state[1,1:] *= -1
-
-    i.e. body 0 at ``q_0`` with *each coordinate* ``U[0.5, 1.5]`` (first quadrant, no
-    random rotation), ``r = |q_0|``, velocity ``v_0 = (−q_0y, q_0x) · √(G m) / (2 r^{3/2})``
+    (``experiment-orbits/data.py``, published as ``experiment-2body/data.py``): body 0
+    at ``q_0`` with *each coordinate* ``U[0.5, 1.5]`` (first quadrant, no random
+    rotation), ``r = |q_0|``, velocity ``v_0 = (−q_0y, q_0x) · √(G m) / (2 r^{3/2})``
     (the circular speed ``√(G m / 4r)`` for separation ``2r``, counter-clockwise) times
-    one scalar ``1 + ν·N(0, 1)`` per orbit (``ν = 0.05``), body 1 = −body 0 in position and
-    velocity, ``p = m v``. Centre of mass and total momentum are exactly zero.
+    one scalar ``1 + ν·N(0, 1)`` per orbit (``ν = 0.05``), body 1 = −body 0 in position
+    and velocity, ``p = m v``. Centre of mass and total momentum are exactly zero.
 
     Args:
         mass: the mass of each body.

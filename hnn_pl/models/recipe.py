@@ -1,0 +1,206 @@
+"""How every model is trained: optimiser, learning-rate schedule, steps per batch, guards.
+
+One base class, :class:`RecipeModel`, so state and pixel models share the training
+loop and every recipe option works for both. Training uses Lightning's manual
+optimisation: ``trainer.global_step`` counts optimiser steps, so ``max_steps`` keeps
+its meaning whatever ``inner_steps`` is.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import lightning as L
+import torch
+from torch import Tensor
+
+OPTIMIZERS = ("adam", "adamw", "lbfgs")
+SCHEDULES = ("constant", "cosine", "onecycle")
+#: skipped non-finite steps (``on_nonfinite="skip"``) after which the fit stops anyway
+MAX_SKIPS = 10
+
+
+class RecipeModel(L.LightningModule):
+    """The training loop of every model; subclasses give the loss and parameter groups.
+
+    One training batch runs ``inner_steps`` optimiser steps on it (full-batch tasks:
+    Lightning's per-batch work — hooks, logging, loop bookkeeping — is paid once per
+    ``inner_steps`` steps). Each step: loss, a non-finite check *before* the update
+    (``on_nonfinite="stop"`` raises ``FloatingPointError`` naming the step and the last
+    checkpoint, so no non-finite weights are ever saved; ``"skip"`` drops the step,
+    which does not count towards ``max_steps``, up to :data:`MAX_SKIPS` times;
+    L-BFGS always stops),
+    backward, optional gradient-norm clipping, the optimiser and the schedule.
+
+    Learning rate at step ``s`` of ``S`` (``S`` = ``trainer.max_steps``):
+    ``constant``: ``lr``; ``cosine``: ``lr·½(1 + cos(π s/S))``; ``onecycle``:
+    ``torch.optim.lr_scheduler.OneCycleLR(max_lr=lr)`` (warm-up 30 %, cosine
+    annealing, momentum cycling); ``warmup_steps`` > 0 multiplies the first steps by
+    ``s/warmup_steps`` (``constant``/``cosine``).
+
+    Args:
+        lr: learning rate (peak rate for ``onecycle``; L-BFGS step length).
+        weight_decay: L2 coefficient ``λ``: ``λθ`` added to the gradient (Adam, L-BFGS)
+            or decoupled decay (AdamW).
+        optimizer: ``"adam"`` (paper), ``"adamw"`` or ``"lbfgs"`` (strong-Wolfe line
+            search; one optimiser step = one L-BFGS iteration; full batch only).
+        schedule: ``"constant"`` (paper), ``"cosine"`` or ``"onecycle"``.
+        warmup_steps: linear warm-up length.
+        inner_steps: optimiser steps per training batch.
+        grad_clip: clip the gradient's global norm to this value (``None``: off).
+        on_nonfinite: ``"stop"`` or ``"skip"``.
+    """
+
+    def __init__(
+        self,
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        optimizer: str = "adam",
+        schedule: str = "constant",
+        warmup_steps: int = 0,
+        inner_steps: int = 1,
+        grad_clip: float | None = None,
+        on_nonfinite: str = "stop",
+    ) -> None:
+        super().__init__()
+        finite = math.isfinite
+        for ok, message in [
+            (finite(lr) and lr > 0, f"lr must be finite and > 0, got {lr}"),
+            (
+                finite(weight_decay) and weight_decay >= 0,
+                f"weight_decay must be >= 0: {weight_decay}",
+            ),
+            (optimizer in OPTIMIZERS, f"optimizer must be one of {OPTIMIZERS}, got {optimizer!r}"),
+            (schedule in SCHEDULES, f"schedule must be one of {SCHEDULES}, got {schedule!r}"),
+            (warmup_steps >= 0 and inner_steps >= 1, "need warmup_steps >= 0, inner_steps >= 1"),
+            (
+                grad_clip is None or (finite(grad_clip) and grad_clip > 0),
+                f"bad grad_clip {grad_clip}",
+            ),
+            (
+                on_nonfinite in ("stop", "skip"),
+                f"on_nonfinite must be 'stop' or 'skip': {on_nonfinite}",
+            ),
+        ]:
+            if not ok:
+                raise ValueError(message)
+        self.automatic_optimization = False
+        self._skipped = 0
+        self.recipe = dict(
+            lr=lr,
+            weight_decay=weight_decay,
+            optimizer=optimizer,
+            schedule=schedule,
+            warmup_steps=warmup_steps,
+            inner_steps=inner_steps,
+            grad_clip=grad_clip,
+            on_nonfinite=on_nonfinite,
+        )
+
+    def training_loss(self, batch: Any) -> dict[str, Tensor]:
+        """``{"loss": scalar, <part>: scalar, …}`` of a training batch; parts are logged."""
+        raise NotImplementedError
+
+    def param_groups(self) -> list[dict[str, Any]]:
+        """Parameter groups, each with its ``weight_decay``."""
+        return [{"params": list(self.parameters()), "weight_decay": self.recipe["weight_decay"]}]
+
+    # ------------------------------------------------------------------ optimiser
+
+    def _total_steps(self) -> int:
+        if self.trainer.max_steps and self.trainer.max_steps > 0:
+            return self.trainer.max_steps
+        return max(1, int(self.trainer.estimated_stepping_batches) * self.recipe["inner_steps"])
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        r = self.recipe
+        groups = self.param_groups()
+        if r["optimizer"] == "lbfgs":
+            params = [p for g in groups for p in g["params"]]
+            opt = torch.optim.LBFGS(
+                params, lr=r["lr"], max_iter=1, history_size=50, line_search_fn="strong_wolfe"
+            )
+        else:
+            cls = torch.optim.AdamW if r["optimizer"] == "adamw" else torch.optim.Adam
+            opt = cls(groups, lr=r["lr"])
+        warm = r["warmup_steps"]
+        if r["schedule"] == "constant" and not warm:
+            return {"optimizer": opt}
+        total = self._total_steps()
+        if r["schedule"] == "onecycle":
+            sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=r["lr"], total_steps=total + 1)
+        else:
+            cosine = r["schedule"] == "cosine"
+
+            def factor(s: int) -> float:
+                f = min(1.0, (s + 1) / warm) if warm else 1.0
+                return f * (0.5 * (1 + math.cos(math.pi * min(s, total) / total)) if cosine else 1)
+
+            sched = torch.optim.lr_scheduler.LambdaLR(opt, factor)
+        return {"optimizer": opt, "lr_scheduler": sched}
+
+    # ------------------------------------------------------------------ the loop
+
+    def _l2(self, groups: list[dict[str, Any]]) -> Tensor | float:
+        """``Σ_g λ_g/2 ‖θ_g‖²``: L-BFGS's weight decay, as a loss term."""
+        return sum(
+            g["weight_decay"] / 2 * sum(p.pow(2).sum() for p in g["params"])
+            for g in groups
+            if g["weight_decay"]
+        )
+
+    def _nonfinite(self, parts: dict[str, Tensor], can_skip: bool = True) -> bool:
+        """Whether to skip this step; raises for ``on_nonfinite="stop"``."""
+        if bool(torch.isfinite(parts["loss"])):
+            self._skipped = 0
+            return False
+        skip = can_skip and self.recipe["on_nonfinite"] == "skip"
+        if skip and self._skipped < MAX_SKIPS:
+            self._skipped += 1
+            return True
+        ckpt = getattr(self.trainer.checkpoint_callback, "last_model_path", "") or "none"
+        after = f" after {MAX_SKIPS} skipped steps" if skip else ""
+        raise FloatingPointError(
+            f"non-finite training loss ({float(parts['loss'].detach())}) at step {self.global_step}"
+            f"{after}: training stopped before the update (last good checkpoint: {ckpt}). "
+            "Lower model.init_args.lr, set model.init_args.grad_clip, or on_nonfinite: skip."
+        )
+
+    def training_step(self, batch: Any, batch_idx: int) -> None:
+        opt, sched = self.optimizers(), self.lr_schedulers()
+        r = self.recipe
+        steps = r["inner_steps"]
+        if self.trainer.max_steps and self.trainer.max_steps > 0:
+            steps = max(1, min(steps, self.trainer.max_steps - self.global_step))
+        parts: dict[str, Tensor] = {}
+        groups = self.param_groups() if r["optimizer"] == "lbfgs" else []
+        for _ in range(steps):
+            if r["optimizer"] == "lbfgs":
+
+                def closure() -> Tensor:
+                    nonlocal parts
+                    opt.zero_grad()
+                    parts = self.training_loss(batch)
+                    self._nonfinite(parts, can_skip=False)
+                    loss = parts["loss"] + self._l2(groups)
+                    self.manual_backward(loss)
+                    return loss
+
+                opt.step(closure)
+            else:
+                opt.zero_grad()
+                parts = self.training_loss(batch)
+                if self._nonfinite(parts):
+                    continue
+                self.manual_backward(parts["loss"])
+                if r["grad_clip"] is not None:
+                    self.clip_gradients(opt, r["grad_clip"], "norm")
+                opt.step()
+            if sched is not None:
+                sched.step()
+        if parts:
+            self.log("train/loss", parts["loss"].detach(), prog_bar=True)
+            for name, value in parts.items():
+                if name != "loss":
+                    self.log(f"train/{name}", value.detach())

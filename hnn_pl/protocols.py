@@ -1,0 +1,135 @@
+"""How a model is rolled out and scored: the two kinds of protocol, as plain data.
+
+A :class:`Protocol` drives :func:`hnn_pl.rollouts.evaluate` (the rollout callback,
+``predict``, the clean evaluation); a :class:`ReferenceProtocol` is the published
+procedure of a state task with every quirk a named field (SPEC "Known quirks"),
+run by :func:`hnn_pl.evaluate.evaluate_reference`. Each task's instances live in
+:mod:`hnn_pl.tasks`; a config names one and overrides fields, it never restates it.
+Kept free of heavy imports.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """A batched rollout of a model from held-out starts, and how it is scored.
+
+    Attributes:
+        t_end: horizon of the system's ground truth; ``None``: the held-out
+            trajectories' own times (measured data) or ``n_points`` frames (pixel).
+        n_points: output times (pixel: frames); ``None`` keeps the stored length.
+        max_starts: at most this many held-out starts (the first ones).
+        method, rtol, atol, step_size: the integrator (:func:`hnn_pl.odeint`).
+        dtype: ``"float64"`` integrates a float64 copy of the field (the rollout's
+            error stays far below the model's); ``"model"``: the model's dtype.
+        n_groups: groups for the "±" (std of group means / √n_groups).
+        scale_rows: training inputs over which ``H_θ``'s spread (the yardstick of
+            ``conserved_drift``) is measured.
+        probe_rows: pixel: training inputs the probe ``z ↦ (q, p)`` is fitted on.
+    """
+
+    t_end: float | None = 20.0
+    n_points: int | None = 200
+    max_starts: int | None = None
+    method: str = "dopri5"
+    rtol: float = 1e-9
+    atol: float = 1e-9
+    step_size: float | None = None
+    dtype: str = "float64"
+    n_groups: int = 5
+    scale_rows: int = 4096
+    probe_rows: int | None = None
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if self.dtype not in ("float64", "float32", "model"):
+            raise ValueError(f"dtype must be 'float64', 'float32' or 'model', got {self.dtype!r}")
+        from hnn_pl.integrate import METHODS  # torch only; validates before any work
+
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; valid methods: {sorted(METHODS)}")
+
+    def replace(self, **overrides: Any) -> Protocol:
+        """A copy with ``overrides`` (unknown names raise ``TypeError``)."""
+        return dataclasses.replace(self, **overrides)
+
+    def solver_kwargs(self) -> dict[str, Any]:
+        """``method``, ``rtol``, ``atol``, ``step_size`` for :func:`hnn_pl.odeint`."""
+        return {k: getattr(self, k) for k in ("method", "rtol", "atol", "step_size")}
+
+
+@dataclass(frozen=True)
+class ReferenceProtocol:
+    """The published energy-MSE procedure of one state task, quirks as named options.
+
+    Attributes:
+        starts: ``"box"``: each coordinate uniform in ``±[box_low, box_high]``, random
+            sign (spring, pendulum; quirk 4); ``"system"``: the system's sampler
+            seeded ``0 … n_starts − 1`` (n-body); ``"test"``: the first held-out
+            state over the held-out times (real pendulum).
+        n_starts, t_end, n_points: trajectories, horizon ``[0, t_end]``, output times.
+        box_low, box_high: the range of ``"box"`` starts.
+        rtol, atol: scipy RK45's (quirk 3); ``atol=None`` leaves scipy's 1e-6, which
+            then sets the accuracy (quirk 5).
+        time_stretch: factor on the models' time axis (quirk 1: spring, 1.09).
+        compound_stretch: trial ``k`` (1…15) stretched by ``time_stretch^(k+1)``
+            (quirk 1: in-place mutation; the horizon compounds to t ≈ 79).
+        energy: ``"system"`` or ``"q2p2"``: ``q² + p²`` (quirk 2, pendulum).
+        n_groups: groups for the "±".
+    """
+
+    starts: str = "box"
+    n_starts: int = 15
+    box_low: float = 0.2
+    box_high: float = 1.0
+    t_end: float = 20.0
+    n_points: int = 100
+    rtol: float = 1e-12
+    atol: float | None = None
+    time_stretch: float = 1.0
+    compound_stretch: bool = False
+    energy: str = "system"
+    n_groups: int = 5
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if self.starts not in ("box", "system", "test"):
+            raise ValueError(f"starts must be 'box', 'system' or 'test', got {self.starts!r}")
+        if self.energy not in ("system", "q2p2"):
+            raise ValueError(f"energy must be 'system' or 'q2p2', got {self.energy!r}")
+
+
+def check_fields(p: Any) -> None:
+    """Counts positive, tolerances non-negative and finite, ``n_groups ≥ 1``.
+
+    Raises:
+        ValueError: naming the field and the value.
+    """
+    for f in fields(p):
+        v = getattr(p, f.name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            continue
+        if not math.isfinite(v):
+            raise ValueError(f"{type(p).__name__}.{f.name} must be finite, got {v}")
+        if f.name in ("rtol", "atol") and v < 0:
+            raise ValueError(f"{type(p).__name__}.{f.name} must be >= 0, got {v}")
+        if f.name not in ("rtol", "atol", "box_low") and v <= 0:
+            raise ValueError(f"{type(p).__name__}.{f.name} must be > 0, got {v}")
+
+
+def describe(p: Protocol | ReferenceProtocol) -> str:
+    """The fields that differ from the class's defaults, ``"k=v, …"`` (or the defaults)."""
+    default = type(p)()
+    changed = [
+        f"{f.name}={getattr(p, f.name)}"
+        for f in fields(p)
+        if getattr(p, f.name) != getattr(default, f.name)
+    ]
+    base = ", ".join(f"{f.name}={getattr(default, f.name)}" for f in fields(p))
+    return ", ".join(changed) or f"defaults ({base})"

@@ -1,0 +1,286 @@
+"""The one rollout-and-score engine, for state and pixel models alike.
+
+:func:`rollout` (``hnn_pl.rollout``) integrates a model from given starts;
+:func:`run` rolls it out against a DataModule's held-out truth under a
+:class:`~hnn_pl.protocols.Protocol`; :func:`score` computes every metric;
+:func:`evaluate` is ``run`` then ``score`` (callbacks, ``predict``, ``reproduce``).
+Trajectories are time first, ``(T, B, D)``, as :func:`hnn_pl.odeint` returns them.
+
+Duck-typed, public attributes only. A model: ``field`` (a module with
+``vector_field(t, y)`` and, for an HNN, ``hamiltonian(y)``) or is one itself; pixel
+models also ``encode``, ``decode``, ``frame_dt``. A DataModule:
+``rollout_target(t_end, n_points)``, ``energy(y)``, ``reference_inputs(n)``; pixel
+ones also ``rollout_truth``, ``probe_data(n)``, ``canonical``, ``canonical_energy``.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from hnn_pl.integrate import odeint
+from hnn_pl.protocols import Protocol
+
+
+@dataclass
+class Rollout:
+    """A rollout and its truth: times ``t (T,)``, states ``y_true``/``y_pred (T, B, D)``
+    (``y_pred`` integrated from ``y_true[0]``), energies ``e_true``/``e_pred (T, B)``,
+    the learned ``h_pred (T, B)`` (HNN) and ``h_scale`` (std of ``H_θ`` over reference
+    inputs). Pixel models: ``y``/``e`` are the linear probe's ``(q, p) = (θ, c·θ̇)``;
+    ``z_true``/``z_pred (T, B, L)`` encoded and integrated latents, ``x_true``/``x_pred
+    (T, B, 1568)`` frame pairs, ``probe (L + 1, 2)`` with ``(q, p) ≈ [z, 1] @ probe``
+    and its training residual ``probe_mse``."""
+
+    t: Tensor
+    y_true: Tensor
+    y_pred: Tensor
+    e_true: Tensor
+    e_pred: Tensor
+    h_pred: Tensor | None = None
+    h_scale: Tensor | float = 0.0
+    z_true: Tensor | None = None
+    z_pred: Tensor | None = None
+    x_true: Tensor | None = None
+    x_pred: Tensor | None = None
+    probe: Tensor | None = None
+    probe_mse: Tensor | float = 0.0
+
+    @property
+    def is_pixel(self) -> bool:
+        return self.x_pred is not None
+
+
+def _dtype(protocol_dtype: str | torch.dtype | None) -> torch.dtype | None:
+    if protocol_dtype is None or isinstance(protocol_dtype, torch.dtype):
+        return protocol_dtype
+    return None if protocol_dtype == "model" else getattr(torch, protocol_dtype)
+
+
+def integrate_field(
+    field: nn.Module,
+    y0: Tensor,
+    t: Tensor,
+    method: str = "dopri5",
+    dtype: str | torch.dtype | None = torch.float64,
+    **kwargs: Any,
+) -> tuple[Tensor, nn.Module]:
+    """``(T, B, D)`` states of ``field.vector_field`` from ``y0 (B, D)`` over ``t (T,)``,
+    and the field used: a copy in ``dtype`` (float64 keeps the rollout's error far
+    below the model's), or the field itself for ``"model"``/``None``."""
+    dtype = _dtype(dtype)
+    param = next(field.parameters(), None)
+    if dtype is not None and param is not None and param.dtype != dtype:
+        field = copy.deepcopy(field).to(dtype)
+    dtype = dtype or (param.dtype if param is not None else y0.dtype)
+    with torch.no_grad():
+        y = odeint(field.vector_field, y0.to(dtype), t.to(dtype), method=method, **kwargs)
+    return y, field
+
+
+def _learned_h(field: nn.Module, y: Tensor) -> Tensor | None:
+    """``H_θ`` along ``y (T, B, D)`` as ``(T, B)``, or ``None`` without ``hamiltonian``."""
+    if not hasattr(field, "hamiltonian"):
+        return None
+    with torch.no_grad():
+        return field.hamiltonian(y.flatten(0, 1)).reshape(y.shape[:2])
+
+
+def is_pixel_model(model: Any) -> bool:
+    """Whether ``model`` works on observations through ``encode``/``decode``."""
+    return callable(getattr(model, "encode", None)) and callable(getattr(model, "decode", None))
+
+
+@dataclass
+class Trajectories:
+    """What :func:`rollout` returns: ``t (T,)``, states ``y (T, B, D)`` (pixel: latents),
+    the learned ``h (T, B)`` (HNN), ``energy (T, B)`` (when given), decoded ``frames
+    (T, B, input_dim)`` (pixel)."""
+
+    t: Tensor
+    y: Tensor
+    h: Tensor | None = None
+    energy: Tensor | None = None
+    frames: Tensor | None = None
+
+    def as_dict(self) -> dict[str, Tensor]:
+        return {k: v for k, v in vars(self).items() if v is not None}
+
+
+def rollout(
+    model: Any,
+    y0: Tensor,
+    t: Tensor,
+    method: str = "dopri5",
+    dtype: str | torch.dtype | None = "float64",
+    energy: Any = None,
+    **kwargs: Any,
+) -> Trajectories:
+    """Integrate a model from ``y0`` over ``t``: ``hnn_pl.rollout(model, y0, t, method=…)``.
+
+    Args:
+        model: a state model (``HNN``, ``Baseline``) or a pixel model
+            (``AutoencoderHNN``, ``AutoencoderBaseline``), or any module with
+            ``vector_field(t, y)``.
+        y0: ``(B, D)`` starts; for a pixel model ``(B, input_dim)`` frame pairs,
+            encoded first.
+        t: ``(T,)`` output times (pixel models: in the latent field's time unit,
+            one frame lasting ``model.frame_dt``).
+        method: a key of :data:`hnn_pl.integrate.METHODS`.
+        dtype: integrate a copy of the field in this dtype (``"model"``: as is).
+        energy: optional ``(..., D) -> (...)`` physical energy of the states.
+        **kwargs: ``rtol``, ``atol``, ``step_size``, ``options`` of :func:`hnn_pl.odeint`.
+
+    Returns:
+        :class:`Trajectories` with states, ``H_θ`` (HNN), energy and frames (pixel).
+    """
+    was_training = getattr(model, "training", False)
+    if isinstance(model, nn.Module):
+        model.eval()
+    try:
+        with torch.no_grad():
+            pixel = is_pixel_model(model)
+            z0 = model.encode(y0) if pixel else y0
+            field = getattr(model, "field", model)
+            y, field = integrate_field(field, z0, torch.as_tensor(t), method, dtype, **kwargs)
+            out = Trajectories(t=torch.as_tensor(t).to(y.dtype), y=y, h=_learned_h(field, y))
+            if pixel:
+                out.frames = model.decode(y.to(z0.dtype))
+            if energy is not None:
+                out.energy = energy(y)
+    finally:
+        if isinstance(model, nn.Module):
+            model.train(was_training)
+    return out
+
+
+def run(model: Any, dm: Any, protocol: Protocol) -> Rollout:
+    """Roll ``model`` out from ``dm``'s held-out starts under ``protocol``.
+
+    State models: starts and truth from ``dm.rollout_target(t_end, n_points)``.
+    Pixel models: the first frame pair of each held-out trajectory is encoded, the
+    latent field integrated over ``n_points`` frames (``t = k·frame_dt``), decoded,
+    and the latents mapped to ``(q, p)`` by an affine least-squares probe fitted on
+    ``probe_rows`` encoded training inputs; each model uses its own encoder and probe.
+    The model is put in eval mode and restored.
+    """
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            return (_run_pixel if is_pixel_model(model) else _run_state)(model, dm, protocol)
+    finally:
+        model.train(was_training)
+
+
+def _device(model: Any) -> torch.device:
+    param = next(model.parameters(), None)
+    return param.device if param is not None else torch.device("cpu")
+
+
+def _run_state(model: Any, dm: Any, p: Protocol) -> Rollout:
+    device = _device(model)
+    t, y_true = dm.rollout_target(p.t_end, p.n_points)
+    y_true = y_true[:, : p.max_starts].to(device)
+    kw = p.solver_kwargs()
+    field = getattr(model, "field", model)
+    y_pred, field = integrate_field(field, y_true[0], t.to(device), dtype=p.dtype, **kw)
+    y_true = y_true.to(y_pred.dtype)
+    r = Rollout(t.to(y_pred.dtype), y_true, y_pred, dm.energy(y_true), dm.energy(y_pred))
+    r.h_pred = _learned_h(field, y_pred)
+    if r.h_pred is not None:
+        r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
+    return r
+
+
+def fit_probe(z: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
+    """Affine least squares ``target (N, K) ≈ [z, 1] @ W`` for ``z (N, L)``, in float64:
+    ``W (L + 1, K)`` and the mean squared residual."""
+    a = torch.cat([z.double(), z.new_ones(len(z), 1, dtype=torch.float64)], -1)
+    w = torch.linalg.lstsq(a, target.double()).solution
+    return w, ((a @ w - target.double()) ** 2).mean()
+
+
+def apply_probe(w: Tensor, z: Tensor) -> Tensor:
+    """``[z, 1] @ W``: ``(..., L) -> (..., K)`` in float64."""
+    return z.double() @ w[:-1] + w[-1]
+
+
+def _run_pixel(model: Any, dm: Any, p: Protocol) -> Rollout:
+    device = _device(model)
+    x_train, qp_train = dm.probe_data(p.probe_rows)
+    z_train = model.encode(x_train.to(device))
+    probe, probe_mse = fit_probe(z_train, qp_train.to(device))
+    t, y_true, x_true = dm.rollout_truth(p.t_end, p.n_points)
+    y_true, x_true = y_true[:, : p.max_starts], x_true[:, : p.max_starts].to(device)
+    z_true = model.encode(x_true)
+    t_model = torch.arange(len(t), dtype=torch.float64, device=device) * model.frame_dt
+    kw = p.solver_kwargs()
+    z_pred, field = integrate_field(model.field, z_true[0], t_model, dtype=p.dtype, **kw)
+    qp_true = dm.canonical(y_true.to(device)).double()
+    qp_pred = apply_probe(probe, z_pred)
+    r = Rollout(
+        t=t.double().cpu(),
+        y_true=qp_true,
+        y_pred=qp_pred,
+        e_true=dm.canonical_energy(qp_true),
+        e_pred=dm.canonical_energy(qp_pred),
+        z_true=z_true.to(z_pred.dtype),
+        z_pred=z_pred,
+        x_true=x_true,
+        x_pred=model.decode(z_pred.to(z_true.dtype)),
+        probe=probe,
+        probe_mse=probe_mse,
+    )
+    r.h_pred = _learned_h(field, z_pred)
+    if r.h_pred is not None:
+        r.h_scale = field.hamiltonian(z_train.to(z_pred.dtype)).std()
+    return r
+
+
+def energy_mse_per_trajectory(r: Rollout) -> Tensor:
+    """``mean_t (E(y_true) − E(y_pred))²``: ``(B,)``."""
+    return ((r.e_true - r.e_pred) ** 2).mean(0)
+
+
+def conserved_drift(r: Rollout) -> Tensor:
+    """``mean_b max_t |H_θ(y_t) − H_θ(y_0)| / (|H_θ(y_0)| + scale)``.
+
+    ``H_θ`` carries an arbitrary additive constant, so ``|H_θ(y_0)|`` alone is no
+    yardstick; ``scale = r.h_scale`` (the spread of ``H_θ`` over training inputs)
+    measures the drift against the spread of the learned energy over the data.
+    """
+    h = r.h_pred
+    return ((h - h[0]).abs().amax(0) / (h[0].abs() + r.h_scale)).mean()
+
+
+def score(r: Rollout) -> dict[str, float]:
+    """Every metric of a rollout, unprefixed.
+
+    - ``energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²``;
+    - ``state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
+    - ``conserved_drift`` (HNN): see :func:`conserved_drift`;
+    - pixel models also ``pixel_mse`` (decoded vs true frame pairs), ``latent_mse``
+      (integrated vs encoded true pairs) and ``probe_mse``.
+    """
+    out = {
+        "energy_mse": energy_mse_per_trajectory(r).mean(),
+        "state_mse": ((r.y_true - r.y_pred) ** 2).mean(),
+    }
+    if r.h_pred is not None:
+        out["conserved_drift"] = conserved_drift(r)
+    if r.is_pixel:
+        out["pixel_mse"] = ((r.x_pred - r.x_true) ** 2).mean()
+        out["latent_mse"] = ((r.z_pred - r.z_true) ** 2).mean()
+        out["probe_mse"] = r.probe_mse
+    return {k: float(v) for k, v in out.items()}
+
+
+def evaluate(model: Any, dm: Any, protocol: Protocol) -> tuple[dict[str, float], Rollout]:
+    """:func:`run` then :func:`score`: ``({metric: value}, rollout)``."""
+    r = run(model, dm, protocol)
+    return score(r), r

@@ -1,0 +1,172 @@
+"""The task registry: each experiment of the paper named once.
+
+A :class:`Task` holds everything that is *about the experiment* rather than about a
+model or a data set: its configs (per recipe and model), the published numbers, its
+reference and clean protocols and its kind (``"state"`` or ``"pixel"``, which picks
+the evaluation). ``reproduce``, ``evaluate``, the rollout callback (a config names a
+task's protocol) and the README read it from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+from hnn_pl.protocols import Protocol, ReferenceProtocol
+
+MODELS = ("baseline", "hnn")
+RECIPES = ("paper", "fast")
+
+
+class Published(NamedTuple):
+    """The reference README's numbers of one model on one task (SPEC)."""
+
+    train_loss: float
+    test_loss: float
+    energy_mse: float
+    energy_mse_pm: float
+
+
+@dataclass(frozen=True)
+class Task:
+    """One experiment of the paper.
+
+    Attributes:
+        name: the registry key, also the stem of its configs.
+        title: a human name.
+        kind: ``"state"`` (models of ``dy/dt`` on states) or ``"pixel"`` (an
+            autoencoder with latent dynamics).
+        published: model name → :class:`Published`.
+        reference: the published energy-MSE procedure (a :class:`ReferenceProtocol`
+            for state tasks; a :class:`Protocol` for the pixel task, whose
+            reference is a latent rollout of the first held-out trajectory).
+        clean: the protocol every model is scored with the same way, and the
+            rollout callback's default.
+        cost: relative training time (``reproduce`` starts the longest first).
+    """
+
+    name: str
+    title: str
+    kind: str
+    published: dict[str, Published]
+    reference: ReferenceProtocol | Protocol
+    clean: Protocol
+    cost: float = 1.0
+    notes: dict[str, str] = field(default_factory=dict)
+
+    def config(self, model: str = "hnn", recipe: str = "paper") -> str:
+        """The bundled config's file name, e.g. ``spring_fast_baseline.yaml``."""
+        if model not in MODELS or recipe not in RECIPES:
+            raise ValueError(f"model must be in {MODELS} and recipe in {RECIPES}")
+        parts = [self.name, "fast" if recipe == "fast" else "", "baseline" * (model != "hnn")]
+        return "_".join(p for p in parts if p) + ".yaml"
+
+    def protocol(self, name: str = "clean") -> Protocol | ReferenceProtocol:
+        """``"clean"`` or ``"reference"``."""
+        if name not in ("clean", "reference"):
+            raise ValueError(f"protocol must be 'clean' or 'reference', got {name!r}")
+        return getattr(self, name)
+
+    def evaluate(self, model: Any, dm: Any) -> dict[str, Any]:
+        """Losses and both protocols (see :mod:`hnn_pl.evaluate`)."""
+        from hnn_pl import evaluate
+
+        return evaluate.EVALUATORS[self.kind](self, model, dm)
+
+
+TASKS: dict[str, Task] = {
+    t.name: t
+    for t in (
+        Task(
+            "spring",
+            "ideal mass-spring",
+            "state",
+            {
+                "baseline": Published(3.7134e-02, 3.6656e-02, 1.7077e-01, 2.06e-02),
+                "hnn": Published(3.6933e-02, 3.5928e-02, 3.8416e-04, 6.53e-05),
+            },
+            ReferenceProtocol(time_stretch=1.09, compound_stretch=True),
+            Protocol(),
+            cost=1.0,
+        ),
+        Task(
+            "pendulum",
+            "ideal pendulum",
+            "state",
+            {
+                "baseline": Published(3.2606e-02, 3.5273e-02, 4.1519e-02, 9.62e-03),
+                "hnn": Published(3.2787e-02, 3.5586e-02, 2.4852e-02, 5.42e-03),
+            },
+            ReferenceProtocol(energy="q2p2"),
+            Protocol(),
+            cost=1.2,
+        ),
+        Task(
+            "real_pendulum",
+            "real pendulum (measured)",
+            "state",
+            {
+                "baseline": Published(2.7455e-03, 2.1864e-03, 3.8564e-01, 6.92e-02),
+                "hnn": Published(9.2376e-03, 5.9584e-03, 1.4477e-02, 4.65e-03),
+            },
+            ReferenceProtocol(starts="test", n_starts=1, rtol=1e-3, n_groups=1),
+            Protocol(t_end=None, n_points=None, n_groups=1),
+            cost=0.8,
+        ),
+        Task(
+            "two_body",
+            "two-body",
+            "state",
+            {
+                "baseline": Published(3.2682e-05, 2.9575e-05, 6.3276e-02, 3.36e-02),
+                "hnn": Published(2.9959e-06, 2.8218e-06, 3.8751e-05, 5.04e-06),
+            },
+            ReferenceProtocol(starts="system", t_end=25.0, n_points=500, rtol=1e-9),
+            Protocol(t_end=20.0, max_starts=100),
+            cost=4.0,
+        ),
+        Task(
+            "three_body",
+            "three-body",
+            "state",
+            {
+                "baseline": Published(9.5573e-02, 3.8000e-01, 1.0906e02, 7.74e01),
+                "hnn": Published(8.0346e-02, 4.8809e-01, 4.1926e-02, 3.39e-02),
+            },
+            ReferenceProtocol(starts="system", t_end=3.0, n_points=500, rtol=1e-9),
+            Protocol(t_end=5.0, max_starts=100),
+            cost=5.0,
+        ),
+        Task(
+            "pixel",
+            "pixel pendulum",
+            "pixel",
+            {
+                "baseline": Published(1.7731e-04, 1.7306e-04, 9.2748e-03, 1.14e-03),
+                "hnn": Published(1.8683e-04, 1.8451e-04, 1.5315e-04, 8.42e-06),
+            },
+            Protocol(t_end=None, n_points=200, max_starts=1, n_groups=1),
+            Protocol(t_end=None, n_points=200),
+            cost=4.5,
+            notes={
+                "reference": "first held-out 200-frame trajectory (as the reference's early "
+                "evaluation), each model with its own encoder and probe",
+                "clean": "all held-out 200-frame trajectories",
+            },
+        ),
+    )
+}
+
+#: what ``reproduce`` runs without ``--tasks`` (the pixel task adds ~5 min per run)
+DEFAULT_TASKS = [name for name, t in TASKS.items() if t.kind == "state"]
+
+
+def get(name: str) -> Task:
+    """The task called ``name``.
+
+    Raises:
+        KeyError: naming the known tasks.
+    """
+    if name not in TASKS:
+        raise KeyError(f"unknown task {name!r}; known tasks: {', '.join(TASKS)}")
+    return TASKS[name]

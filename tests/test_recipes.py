@@ -1,0 +1,161 @@
+"""Training recipes: optimisers, schedules, inner steps, non-finite guards, time to accuracy."""
+
+from __future__ import annotations
+
+import math
+
+import lightning as L
+import pytest
+import torch
+
+from hnn_pl.callbacks import TimeToAccuracy
+from hnn_pl.data import SimulatedData
+from hnn_pl.models import HNN, Baseline
+from hnn_pl.systems import MassSpring
+
+
+def _dm(tmp_path, **kw) -> SimulatedData:
+    kw = {"n_trajectories": 6, "n_points": 10, "full_batch_steps": 4, "seed": 0, **kw}
+    return SimulatedData(MassSpring(), cache_dir=str(tmp_path), dtype="float64", **kw)
+
+
+def _fit(model, dm, steps: int, callbacks=()) -> L.Trainer:
+    trainer = L.Trainer(
+        max_steps=steps,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        precision="64-true",
+        callbacks=list(callbacks),
+    )
+    trainer.fit(model, dm)
+    return trainer
+
+
+def _model(cls=HNN, **kw):
+    torch.manual_seed(0)
+    return cls(input_dim=2, hidden_dim=16, **kw)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"lr": math.inf}, "lr"),
+        ({"lr": 0.0}, "lr"),
+        ({"weight_decay": -1.0}, "weight_decay"),
+        ({"optimizer": "sgd"}, "optimizer"),
+        ({"schedule": "linear"}, "schedule"),
+        ({"inner_steps": 0}, "inner_steps"),
+        ({"grad_clip": 0.0}, "grad_clip"),
+        ({"on_nonfinite": "ignore"}, "on_nonfinite"),
+        ({"hidden_dim": 0}, "hidden_dim"),
+    ],
+)
+def test_bad_recipe_options_fail_at_construction(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        HNN(input_dim=2, **{"hidden_dim": 16, **kwargs})
+
+
+def test_inner_steps_are_the_same_optimiser_steps_and_respect_max_steps(tmp_path):
+    """Full batch: k steps per batch is the same training as one step per batch."""
+    one = _model(weight_decay=1e-4)
+    _fit(one, _dm(tmp_path), 7)
+    many = _model(weight_decay=1e-4, inner_steps=5)
+    trainer = _fit(many, _dm(tmp_path), 7)
+    assert trainer.global_step == 7  # 5 + 2: the last batch is cut to max_steps
+    for a, b in zip(one.parameters(), many.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("schedule", ["cosine", "onecycle"])
+def test_schedules_decay_to_the_end_of_training(tmp_path, schedule):
+    model = _model(lr=1e-2, schedule=schedule, warmup_steps=2 * (schedule == "cosine"))
+    trainer = _fit(model, _dm(tmp_path), 20)
+    lr_end = trainer.optimizers[0].param_groups[0]["lr"]
+    assert lr_end < 1e-2 * 1e-3
+
+
+@pytest.mark.parametrize("cls", [HNN, Baseline])
+def test_lbfgs_fits_a_full_batch_faster_than_adam(tmp_path, cls):
+    dm = _dm(tmp_path)
+    dm.setup()
+
+    def loss(m):
+        with torch.no_grad():
+            return float(torch.nn.functional.mse_loss(m(dm.x_train), dm.dx_train))
+
+    adam = _model(cls).double()
+    lbfgs = _model(cls, optimizer="lbfgs", lr=1.0, weight_decay=1e-4)
+    start = loss(adam)
+    _fit(adam, dm, 20)
+    _fit(lbfgs, dm, 20)
+    assert loss(lbfgs) < loss(adam) < start
+
+
+def test_a_non_finite_loss_stops_before_the_update(tmp_path):
+    dm = _dm(tmp_path)
+    dm.setup()
+    dm.x_train[3, 0] = math.nan
+    model = _model()
+    before = [p.detach().clone() for p in model.parameters()]
+    with pytest.raises(FloatingPointError, match="at step 0.*last good checkpoint"):
+        _fit(model, dm, 5)
+    assert all(torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))
+
+
+def test_skip_mode_drops_non_finite_steps_then_gives_up(tmp_path):
+    dm = _dm(tmp_path)
+    dm.setup()
+    dm.x_train[3, 0] = math.nan
+    model = _model(on_nonfinite="skip")
+    before = [p.detach().clone() for p in model.parameters()]
+    with pytest.raises(FloatingPointError, match="after 10 skipped steps"):
+        _fit(model, dm, 5)
+    assert all(torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))
+
+
+def test_grad_clip_bounds_the_update(tmp_path):
+    model = _model(Baseline, optimizer="adamw", lr=1e-3, grad_clip=1e-8)
+    before = [p.detach().clone() for p in model.parameters()]
+    _fit(model, _dm(tmp_path), 1)
+    # Adam normalises the clipped gradient, so the first step still moves by ≈ lr
+    moved = max(float((a - b.detach()).abs().max()) for a, b in zip(before, model.parameters(), strict=True))
+    assert 0 < moved <= 1.01e-3
+
+
+def test_time_to_accuracy_records_the_first_step_at_the_target_and_can_stop(tmp_path):
+    dm = _dm(tmp_path)
+    never = TimeToAccuracy("spring", target=0.0, every_n_steps=3)
+    _fit(_model(), dm, 9, [never])
+    assert never.reached is None and [h[0] for h in never.history] == [3, 6, 9]
+    assert all(h[2] > 0 for h in never.history)
+    at_once = TimeToAccuracy("spring", target=1e9, every_n_steps=3, stop=True)
+    trainer = _fit(_model(), dm, 9, [at_once])
+    assert trainer.global_step == 3 and at_once.reached["step"] == 3
+    assert 0 < at_once.reached["seconds"] <= at_once.reached["wall_seconds"]
+
+
+def test_time_to_accuracy_scores_like_the_published_procedure(tmp_path):
+    """The callback's batched torch rollout agrees with scipy's RK45 (≈1e-6 accurate)."""
+    from hnn_pl.evaluate import reference_case, score_reference
+    from hnn_pl.tasks import TASKS
+
+    dm = _dm(tmp_path)
+    dm.setup()
+    model = _model()
+    _fit(model, dm, 30)
+    case = reference_case(dm, TASKS["spring"].reference)
+    torch_mse = score_reference(model, case, "torch")["energy_mse"]
+    scipy_mse = score_reference(model, case, "scipy")["energy_mse"]
+    assert torch_mse == pytest.approx(scipy_mse, rel=1e-3)
+
+
+def test_data_seed_follows_the_run_seed_unless_pinned(tmp_path):
+    L.seed_everything(3)
+    follows, pinned = _dm(tmp_path, seed=None), _dm(tmp_path, seed=0)
+    assert (follows.seed, pinned.seed) == (3, 0)
+    follows.setup()
+    pinned.setup()
+    assert not torch.equal(follows.x_train, pinned.x_train)
