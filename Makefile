@@ -25,14 +25,14 @@ test: $(STAMP)
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff format --check hnn_pl tests
-	$(BIN)/ruff check hnn_pl tests
+	$(BIN)/ruff format --check hnn_pl tests benchmarks
+	$(BIN)/ruff check hnn_pl tests benchmarks
 
 bench: $(STAMP)
-	$(BIN)/python -m hnn_pl.bench
+	$(BIN)/python benchmarks/run.py
 
 reproduce: $(STAMP)
-	$(BIN)/python -m hnn_pl reproduce
+	$(BIN)/python -m hnn_pl reproduce --out RESULTS.md
 
 clean:
 	rm -rf $(VENV) lightning_logs .pytest_cache

@@ -1,0 +1,15 @@
+"""Run every benchmark and update BENCHMARKS.md between its section markers.
+
+``python benchmarks/run.py [--quick] [--out PATH] [--only NAME ...]``; each topic also
+runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``.
+"""
+
+import data
+import integrators
+import startup
+import training
+from common import REPORT, main
+
+if __name__ == "__main__":
+    topics = {"integrators": integrators, "training": training, "data": data, "startup": startup}
+    main(topics, REPORT)
