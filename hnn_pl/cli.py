@@ -14,7 +14,12 @@ import os
 import warnings
 
 from lightning.pytorch import LightningDataModule, LightningModule
-from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
+from lightning.pytorch.cli import (
+    ArgsType,
+    LightningArgumentParser,
+    LightningCLI,
+    SaveConfigCallback,
+)
 
 # imported for their subclasses: what makes the short class names resolve
 from hnn_pl import data, models, systems
@@ -51,15 +56,50 @@ class HNNArgumentParser(LightningArgumentParser):
         super().__init__(*args, **kwargs)
 
 
+def choose_threads(requested: int | str | None = "auto") -> int:
+    """Torch threads for this process: ``requested`` if a number; ``"auto"``: the cores
+    not busy with other processes, ``max(1, cores − round(load average over 1 min))``.
+
+    On 2 shared cores a second busy process makes 2 OpenMP threads wait for each
+    other at every operation (BENCHMARKS.md, threads under load); 1 thread then runs
+    as fast as on an idle machine.
+    """
+    if requested not in (None, "auto"):
+        n = int(requested)
+        if n < 1:
+            raise ValueError(f"threads must be >= 1 or 'auto', got {requested!r}")
+        return n
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    try:
+        busy = round(os.getloadavg()[0])
+    except OSError:
+        busy = 0
+    return max(1, min(cores or 1, (cores or 1) - busy))
+
+
 class HNNCLI(LightningCLI):
-    """LightningCLI that links the DataModule's ``state_dim`` to the model's ``input_dim``."""
+    """LightningCLI that links the DataModule's ``state_dim`` to the model's ``input_dim``
+    and sets torch's thread count (``--threads N|auto``, see :func:`choose_threads`)."""
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data.state_dim", "model.init_args.input_dim", apply_on="instantiate")
+        parser.add_argument(
+            "--threads",
+            type=int | str,
+            default="auto",
+            help="torch threads: a number, or auto (cores not busy with other processes)",
+        )
+
+    def before_instantiate_classes(self) -> None:
+        import torch
+
+        config = self.config.get(str(self.subcommand), self.config)
+        torch.set_num_threads(choose_threads(config.get("threads", "auto")))
 
 
-def cli_main(args: ArgsType = None, run: bool = True) -> HNNCLI:
-    """Run the CLI on ``args`` (``sys.argv[1:]`` when ``None``); returns the CLI object."""
+def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) -> HNNCLI:
+    """Run the CLI on ``args`` (``sys.argv[1:]`` when ``None``); returns the CLI object.
+    ``save_config=False``: no ``config.yaml`` beside the run (programmatic fits)."""
     import sys
 
     quiet_lightning()
@@ -72,5 +112,6 @@ def cli_main(args: ArgsType = None, run: bool = True) -> HNNCLI:
         args=args,
         run=run,
         save_config_kwargs={"overwrite": True},
+        save_config_callback=SaveConfigCallback if save_config else None,
         parser_class=HNNArgumentParser,
     )
