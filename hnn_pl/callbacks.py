@@ -237,16 +237,17 @@ class TimeToAccuracy(Callback):
     """Training time until the energy MSE on the paper's protocol reaches a target.
 
     Every ``every_n_steps`` optimiser steps (rank zero) the model is scored on its
-    task's reference protocol (:func:`hnn_pl.evaluate.score_reference`; by default
-    batched float64 ``dopri5`` at the protocol's ≈1e-6 accuracy; truth prepared once
-    in ``setup``). Logged: ``tta/energy_mse``; once ≤ ``target``, ``tta/seconds``
-    (training time since ``setup``, scoring excluded) and ``tta/step``; ``stop``
-    ends the fit there. Afterwards :attr:`reached` is ``{"step", "seconds",
-    "wall_seconds", "energy_mse"}`` or ``None``; :attr:`history` every
-    ``(step, seconds, energy_mse)``.
+    task's reference protocol (state tasks: :func:`hnn_pl.evaluate.score_reference`,
+    by default batched float64 ``dopri5`` at the protocol's ≈1e-6 accuracy, truth
+    prepared once in ``setup``; pixel: the engine's latent rollout and probe).
+    Logged: ``tta/energy_mse``; once ≤ ``target``, ``tta/seconds`` (training time
+    since ``setup``, scoring excluded) and ``tta/step``; ``stop`` ends the fit there.
+    Afterwards :attr:`reached` is ``{"step", "seconds", "wall_seconds",
+    "energy_mse"}`` or ``None``; :attr:`history` every ``(step, seconds,
+    energy_mse)``; :attr:`scoring_seconds` the scoring's own cost.
 
     Args:
-        task: a state task of :data:`hnn_pl.tasks.TASKS`.
+        task: a name in :data:`hnn_pl.tasks.TASKS`.
         target: the energy MSE to reach (``None``: the published HNN value).
         every_n_steps: scoring period in optimiser steps.
         stop: end the fit when the target is reached.
@@ -263,38 +264,42 @@ class TimeToAccuracy(Callback):
     ) -> None:
         super().__init__()
         self.task = tasks.get(task)
-        if self.task.kind != "state":
-            raise ValueError(f"TimeToAccuracy scores state tasks; {task!r} is {self.task.kind}")
+        if solver not in ("torch", "scipy"):
+            raise ValueError(f"solver must be 'torch' or 'scipy', got {solver!r}")
         if every_n_steps < 1:
             raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
         self.target = self.task.published["hnn"].energy_mse if target is None else float(target)
         self.every_n_steps, self.stop, self.solver = every_n_steps, stop, solver
         self.reached: dict[str, float] | None = None
         self.history: list[tuple[int, float, float]] = []
+        self.scoring_seconds = 0.0
 
     def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
-        from hnn_pl.evaluate import reference_case
+        from hnn_pl.evaluate import reference_case, score_reference
 
-        trainer.datamodule.setup(stage)
-        self._case = reference_case(trainer.datamodule, self.task.reference)
+        dm = trainer.datamodule
+        dm.setup(stage)
+        if self.task.kind == "state":
+            case = reference_case(dm, self.task.reference)
+            self._score = lambda m: score_reference(m, case, self.solver)["energy_mse"]
+        else:
+            self._score = lambda m: rollouts.evaluate(m, dm, self.task.reference)[0]["energy_mse"]
         self._next = self.every_n_steps
         self._start = time.perf_counter()
-        self._scoring = 0.0
+        self.scoring_seconds = 0.0
 
     def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *args) -> None:
         step = trainer.global_step
         if step < self._next or not trainer.is_global_zero:
             return
-        from hnn_pl.evaluate import score_reference
-
         self._next = step + self.every_n_steps - step % self.every_n_steps
         t0 = time.perf_counter()
         was_training = pl_module.training
         pl_module.eval()
-        energy = score_reference(pl_module, self._case, self.solver)["energy_mse"]
+        energy = self._score(pl_module)
         pl_module.train(was_training)
-        seconds = t0 - self._start - self._scoring
-        self._scoring += time.perf_counter() - t0
+        seconds = t0 - self._start - self.scoring_seconds
+        self.scoring_seconds += time.perf_counter() - t0
         self.history.append((step, seconds, energy))
         metrics = {"tta/energy_mse": energy}
         if self.reached is None and energy <= self.target:

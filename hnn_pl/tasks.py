@@ -43,6 +43,7 @@ class Task:
         clean: the protocol every model is scored with the same way, and the
             rollout callback's default.
         cost: relative training time (``reproduce`` starts the longest first).
+        tta_every: recipe → optimiser steps between time-to-accuracy checks.
     """
 
     name: str
@@ -53,6 +54,7 @@ class Task:
     clean: Protocol
     cost: float = 1.0
     notes: dict[str, str] = field(default_factory=dict)
+    tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10})
 
     def config(self, model: str = "hnn", recipe: str = "paper") -> str:
         """The bundled config's file name, e.g. ``spring_fast_baseline.yaml``."""
@@ -124,6 +126,7 @@ TASKS: dict[str, Task] = {
             ReferenceProtocol(starts="system", t_end=25.0, n_points=500, rtol=1e-9),
             Protocol(t_end=20.0, max_starts=100),
             cost=4.0,
+            tta_every={"paper": 250, "fast": 25},
         ),
         Task(
             "three_body",
@@ -136,6 +139,7 @@ TASKS: dict[str, Task] = {
             ReferenceProtocol(starts="system", t_end=3.0, n_points=500, rtol=1e-9),
             Protocol(t_end=5.0, max_starts=100),
             cost=5.0,
+            tta_every={"paper": 250, "fast": 25},
         ),
         Task(
             "pixel",
@@ -148,6 +152,7 @@ TASKS: dict[str, Task] = {
             Protocol(t_end=None, n_points=200, max_starts=1, n_groups=1),
             Protocol(t_end=None, n_points=200),
             cost=4.5,
+            tta_every={"paper": 500, "fast": 250},
             notes={
                 "reference": "first held-out 200-frame trajectory (as the reference's early "
                 "evaluation), each model with its own encoder and probe",

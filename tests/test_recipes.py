@@ -121,7 +121,9 @@ def test_grad_clip_bounds_the_update(tmp_path):
     before = [p.detach().clone() for p in model.parameters()]
     _fit(model, _dm(tmp_path), 1)
     # Adam normalises the clipped gradient, so the first step still moves by ≈ lr
-    moved = max(float((a - b.detach()).abs().max()) for a, b in zip(before, model.parameters(), strict=True))
+    moved = max(
+        float((a - b.detach()).abs().max()) for a, b in zip(before, model.parameters(), strict=True)
+    )
     assert 0 < moved <= 1.01e-3
 
 

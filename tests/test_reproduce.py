@@ -90,3 +90,21 @@ def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
         assert r["reference"]["n_trajectories"] == 1 and r["clean"]["n_trajectories"] > 1
         assert math.isfinite(r["clean"]["pixel_mse"]) and math.isfinite(r["test_loss"])
     assert "| pixel | first held-out" in (tmp_path / "R.md").read_text()
+
+
+def test_fast_recipe_records_time_to_accuracy(tmp_path, monkeypatch):
+    """``--recipe fast`` runs the fast configs; each run records whether and when its
+    energy MSE on the paper's protocol reached the published HNN value (``tta``)."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["--tasks", "spring", "--models", "hnn", "--seeds", "2", "--workers", "0"]
+    assert reproduce.main([*argv, "--recipe", "fast", "--max-steps", "20", "--out", "F.md"]) == 0
+    data = json.loads((tmp_path / "F.json").read_text())
+    assert data["meta"]["recipe"] == "fast" and len(data["runs"]) == 2
+    for r in data["runs"]:
+        assert r["steps"] == 20 and "tta" in r
+        if r["tta"] is not None:  # reached: at a checked step, below the target
+            assert r["tta"]["step"] % 10 == 0 and r["tta"]["energy_mse"] <= 3.8416e-04
+    md = (tmp_path / "F.md").read_text()
+    assert "recipe `fast`" in md and "time to accuracy" in md
+    row = next(line for line in md.splitlines() if line.startswith("| spring | hnn |"))
+    assert row.rstrip("|").split("|")[-1].strip().endswith("/2") or "not reached (0/2)" in row
