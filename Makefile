@@ -1,12 +1,12 @@
 # Two commands do all set-up on a fresh machine with Python ≥ 3.10:
-#   make fit    # venv + install + train the default config (CONFIG=spring.yaml)
+#   make fit    # venv + install + train the default config (CONFIG=spring_fast.yaml)
 #   make test   # venv + install + the whole test suite
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 # The CPU build of torch: without the pin pip pulls a multi-GB CUDA build.
 TORCH ?= torch==2.13.0
-CONFIG ?= spring.yaml
+CONFIG ?= spring_fast.yaml
 STAMP := $(VENV)/.installed
 
 .PHONY: venv fit test lint bench reproduce clean

@@ -27,8 +27,13 @@ def _common(tmp_path: Path) -> list[str]:
 
 def _fit(config: str, tmp_path: Path, steps: int = 4):
     args = ["fit", "--config", config, f"--trainer.max_steps={steps}"]
-    args += ["--trainer.check_val_every_n_epoch=1", "--trainer.log_every_n_steps=1"]
-    args += ["--trainer.limit_train_batches=2", *_common(tmp_path)]
+    args += ["--trainer.check_val_every_n_epoch=1", "--trainer.val_check_interval=1.0"]
+    args += ["--trainer.log_every_n_steps=1"]
+    args += [
+        "--trainer.limit_train_batches=2",
+        "--model.init_args.inner_steps=2",
+        *_common(tmp_path),
+    ]
     return cli_main(args)
 
 
