@@ -7,9 +7,18 @@ runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``
 import data
 import integrators
 import startup
+import threads
 import training
+import tta
 from common import REPORT, main
 
 if __name__ == "__main__":
-    topics = {"integrators": integrators, "training": training, "data": data, "startup": startup}
+    topics = {
+        "integrators": integrators,
+        "training": training,
+        "data": data,
+        "startup": startup,
+        "tta": tta,
+        "threads": threads,
+    }
     main(topics, REPORT)
