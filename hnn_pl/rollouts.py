@@ -16,6 +16,7 @@ ones also ``rollout_truth``, ``probe_data(n)``, ``canonical``, ``canonical_energ
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -258,11 +259,27 @@ def conserved_drift(r: Rollout) -> Tensor:
     return ((h - h[0]).abs().amax(0) / (h[0].abs() + r.h_scale)).mean()
 
 
+def motion_error(y_pred: Tensor, y_true: Tensor, fraction: float = 0.1) -> Tensor:
+    """Relative state error over the first ``fraction`` of the points (at least two):
+    ``Σ (y_pred − y_true)² / Σ (y_true − y_true[0])²`` over ``(T, B, D)`` states.
+
+    1 for a model that does not move, ≈ 0.25 for one at half the true speed, → 0 for
+    one that has learned the motion. Early points only: over long horizons any small
+    frequency error decorrelates the phase, so a whole-horizon state error cannot
+    tell a good model from a still one; an energy error alone cannot either (a state
+    that does not move conserves every energy).
+    """
+    k = max(3, math.ceil(fraction * y_true.shape[0]))
+    moved = ((y_true[:k] - y_true[:1]) ** 2).sum()
+    return ((y_pred[:k] - y_true[:k]) ** 2).sum() / moved.clamp_min(torch.finfo(moved.dtype).tiny)
+
+
 def score(r: Rollout) -> dict[str, float]:
     """Every metric of a rollout, unprefixed.
 
     - ``energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²``;
     - ``state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
+    - ``motion_error``: see :func:`motion_error`;
     - ``conserved_drift`` (HNN): see :func:`conserved_drift`;
     - pixel models also ``pixel_mse`` (decoded vs true frame pairs), ``latent_mse``
       (integrated vs encoded true pairs) and ``probe_mse``.
@@ -270,6 +287,7 @@ def score(r: Rollout) -> dict[str, float]:
     out = {
         "energy_mse": energy_mse_per_trajectory(r).mean(),
         "state_mse": ((r.y_true - r.y_pred) ** 2).mean(),
+        "motion_error": motion_error(r.y_pred, r.y_true),
     }
     if r.h_pred is not None:
         out["conserved_drift"] = conserved_drift(r)

@@ -133,10 +133,23 @@ def test_time_to_accuracy_records_the_first_step_at_the_target_and_can_stop(tmp_
     _fit(_model(), dm, 9, [never])
     assert never.reached is None and [h[0] for h in never.history] == [3, 6, 9]
     assert all(h[2] > 0 for h in never.history)
-    at_once = TimeToAccuracy("spring", target=1e9, every_n_steps=3, stop=True)
+    at_once = TimeToAccuracy("spring", target=1e9, every_n_steps=3, stop=True, max_motion_error=9)
     trainer = _fit(_model(), dm, 9, [at_once])
     assert trainer.global_step == 3 and at_once.reached["step"] == 3
     assert 0 < at_once.reached["seconds"] <= at_once.reached["wall_seconds"]
+
+
+def test_time_to_accuracy_refuses_a_field_that_does_not_move(tmp_path):
+    """A still state conserves every energy: energy MSE ≈ 0, yet the motion is wrong."""
+    dm = _dm(tmp_path)
+    model = _model(lr=1e-12)
+    still = TimeToAccuracy("spring", target=1e-9, every_n_steps=1, max_motion_error=0.25)
+    with torch.no_grad():
+        for p in model.field.parameters():
+            p.mul_(1e-6)
+    _fit(model, dm, 1, [still])
+    (_, _, energy, motion), *_ = still.history
+    assert energy < 1e-9 and motion == pytest.approx(1.0, abs=1e-3) and still.reached is None
 
 
 def test_time_to_accuracy_scores_like_the_published_procedure(tmp_path):
