@@ -24,6 +24,15 @@ within float32 rounding of an integer counts as that integer, so a grid built in
 float32 (``linspace(0, 20, 201)``, ``step_size=0.1``) takes one step per interval.
 ``dopri5`` controls the error of every trajectory separately (see :class:`Dopri5`).
 
+Containment: a row whose state turns non-finite or exceeds ``blowup · (1 + |y0|∞)``,
+whose implicit iteration fails, or whose adaptive step underflows, stalls (steps no
+longer change the state: a tolerance below the dtype's resolution), turns stiff or
+runs out of steps stops alone; the other rows are as in a run without it (exactly;
+dopri5: to the rounding of batched kernels, ≈1e-15 in float64).
+``odeint(..., return_status=True)`` returns a :class:`Solution` (states, NaN after a
+row stopped, a :class:`Status` per row and the time it stopped); otherwise any
+stopped row raises ``RuntimeError`` with the rows, times and reasons.
+
 Backward integration (decreasing ``t``) substitutes ``s = -t``, integrating
 ``dy/ds = -func(-s, y)`` forward. Gradients flow to ``y0`` and to parameters used by
 ``func`` (discretise-then-optimise); ``t`` is treated as data.
@@ -31,9 +40,11 @@ Backward integration (decreasing ``t``) substitutes ``s = -t``, integrating
 
 from __future__ import annotations
 
+import enum
 import math
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -49,6 +60,8 @@ __all__ = [
     "ImplicitMidpoint",
     "Leapfrog",
     "RK4",
+    "Solution",
+    "Status",
     "odeint",
     "scipy_fun",
     "scipy_odeint",
@@ -57,7 +70,98 @@ __all__ = [
 Field = Callable[[Tensor, Tensor], Tensor]
 
 _SEPARABILITY_TOL = 1e-6
+_CHECK_EVERY = 16  # dopri5 checks blow-up, stalls and stiffness every this many steps
+_STALL_CHECKS = 8  # consecutive checked steps that do not change the state
 _PROBE_ROWS = 64
+
+
+class Status(enum.IntEnum):
+    """Why a row of :func:`odeint` stopped (``OK``: it reached the last time)."""
+
+    OK = 0
+    DIVERGED = 1  # non-finite, or |y| beyond blowup · (1 + |y0|)
+    NOT_CONVERGED = 2  # implicit_midpoint's fixed-point iteration
+    STEP_UNDERFLOW = 3  # dopri5: the step size fell below the resolution of t
+    STALLED = 4  # dopri5: accepted steps no longer change the state
+    STIFF = 5  # dopri5: steps limited by stability, not accuracy
+    MAX_STEPS = 6  # dopri5: options["max_steps"] attempted steps
+
+    @property
+    def hint(self) -> str:
+        return _HINTS[self]
+
+
+_HINTS = {
+    Status.OK: "",
+    Status.DIVERGED: "the state became non-finite or blew up",
+    Status.NOT_CONVERGED: "the implicit iteration did not converge: use a smaller step_size "
+    "(it contracts only for h * Lipschitz(f) / 2 < 1)",
+    Status.STEP_UNDERFLOW: "step size underflow: a singularity or a field that is non-finite there",
+    Status.STALLED: "steps no longer change the state: rtol/atol are below the dtype's "
+    "resolution (float32 cannot reach rtol much below 1e-6)",
+    Status.STIFF: "the problem is stiff here (steps limited by stability, h·λ > 3.25): use an "
+    "implicit stiff solver, e.g. scipy_odeint(..., method='Radau')",
+    Status.MAX_STEPS: "more than max_steps steps (raise options={'max_steps': n})",
+}
+
+
+@dataclass
+class Solution:
+    """What ``odeint(..., return_status=True)`` returns.
+
+    ``y``: ``(T, B, D)`` states, NaN from the first output after a row stopped;
+    ``status``: ``(B,)`` :class:`Status` codes; ``t_stop``: ``(B,)`` float64 time at
+    which each row stopped (NaN for rows that reached the end).
+    """
+
+    y: Tensor
+    status: Tensor
+    t_stop: Tensor
+
+    @property
+    def ok(self) -> Tensor:
+        """``(B,)`` bool: rows that reached the last time."""
+        return self.status == Status.OK
+
+    def describe(self, method: str = "") -> str:
+        """One line per reason: how many rows, which, from when, and what to do."""
+        lines = []
+        for code in sorted(set(self.status.reshape(-1).tolist()) - {Status.OK}):
+            rows = (self.status.reshape(-1) == code).nonzero().flatten()
+            times = self.t_stop.reshape(-1)[rows]
+            first = rows[times.argmin()]
+            lines.append(
+                f"{method + ': ' if method else ''}{len(rows)} of {self.status.numel()} rows "
+                f"stopped ({Status(code).name.lower()}; rows {rows[:5].tolist()}"
+                f"{'...' if len(rows) > 5 else ''}; first at t = "
+                f"{float(self.t_stop.reshape(-1)[first]):.6g}): {Status(code).hint}."
+            )
+        return "\n".join(lines)
+
+
+class _Rows:
+    """Per-row bookkeeping of a fixed-step integration: ``status (B,)``, ``t_stop (B,)``,
+    ``alive (B,)`` and the blow-up limit ``blowup · (1 + |y0|∞)``."""
+
+    def __init__(self, y0: Tensor, blowup: float) -> None:
+        B = y0.shape[0]
+        self.status = torch.zeros(B, dtype=torch.long, device=y0.device)
+        self.t_stop = torch.full((B,), math.nan, dtype=torch.float64, device=y0.device)
+        self.alive = torch.ones(B, dtype=torch.bool, device=y0.device)
+        self.limit = blowup * (1 + y0.detach().abs().amax(-1))
+        self.lowest = float(self.limit.min())
+        self.any_stopped = False
+
+    def bad(self, y: Tensor) -> Tensor:
+        """``(B,)`` rows whose state is non-finite or beyond the limit."""
+        return ~(y.detach().abs().amax(-1) <= self.limit)
+
+    def stop(self, rows: Tensor, code: Status, t: float) -> None:
+        new = rows & self.alive
+        self.any_stopped = self.any_stopped or bool(new.any())
+        self.status = torch.where(new, int(code), self.status)
+        self.t_stop = torch.where(new, t, self.t_stop)
+        self.alive = self.alive & ~rows
 
 
 class _Solver:
@@ -70,6 +174,7 @@ class _Solver:
     order: int = 0
     defaults: dict[str, Any] = {}
     sign: float = 1.0
+    blowup: float = 1e6
 
     def __init__(
         self, rtol: float, atol: float, step_size: float | None, options: dict[str, Any] | None
@@ -82,8 +187,9 @@ class _Solver:
         self.rtol, self.atol, self.step_size = rtol, atol, step_size
         self.options = {**self.defaults, **(options or {})}
 
-    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Tensor:
-        """States at ``t``: ``y0 (B, D)``, increasing ``t (T,)`` -> ``(T, B, D)``."""
+    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Solution:
+        """States at ``t``: ``y0 (B, D)``, increasing ``t (T,)`` -> ``(T, B, D)`` with
+        each row's status."""
         raise NotImplementedError
 
 
@@ -98,9 +204,10 @@ class _FixedStep(_Solver):
     def _start(self, func: Field, t0: Tensor, y0: Tensor) -> Any:
         return None
 
-    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Tensor:
+    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Solution:
         ts = t.tolist()
         eps = torch.finfo(torch.float32).eps
+        self.rows = rows = _Rows(y0, self.blowup)
         cache = self._start(func, t[0], y0)
         y, ys = y0, [y0]
         for t_a, t_b in zip(ts[:-1], ts[1:], strict=True):
@@ -111,9 +218,13 @@ class _FixedStep(_Solver):
             h = (t_b - t_a) / n
             for k in range(n):
                 tk = torch.tensor(t_a + k * h, dtype=y0.dtype, device=y0.device)
-                y, cache = self.step(func, tk, y, h, cache)
-            ys.append(y)
-        return torch.stack(ys)
+                y_new, cache = self.step(func, tk, y, h, cache)
+                if rows.any_stopped or not float(y_new.detach().abs().max()) <= rows.lowest:
+                    rows.stop(rows.bad(y_new), Status.DIVERGED, self.sign * (t_a + (k + 1) * h))
+                    y_new = torch.where(rows.alive[:, None], y_new, y)
+                y = y_new
+            ys.append(torch.where(rows.alive[:, None], y, math.nan) if rows.any_stopped else y)
+        return Solution(torch.stack(ys), rows.status, rows.t_stop)
 
 
 class Euler(_FixedStep):
@@ -209,8 +320,8 @@ class ImplicitMidpoint(_FixedStep):
     once ``|Δy1| = h |Δk| <= max(atol + rtol |y1|, 8 eps (1 + |y1|))`` elementwise
     (``y1`` of the predictor); converged rows are frozen, the iteration ends when
     all have converged. It contracts only for ``h L / 2 < 1`` (``L`` the field's
-    Lipschitz constant): a step that does not converge in option ``max_iters``
-    (default 50) iterations raises RuntimeError.
+    Lipschitz constant): a row that does not converge in option ``max_iters``
+    (default 50) iterations stops with :attr:`Status.NOT_CONVERGED`.
     """
 
     order = 2
@@ -222,27 +333,37 @@ class ImplicitMidpoint(_FixedStep):
     def step(self, func, t, y, h, cache):
         k, h_prev, k_old, spacing = cache
         if k_old is not None:
-            k = k + (k - k_old) * ((h_prev + h) / (2 * spacing))
-        a = (y + h * k).abs()
-        tol = torch.maximum(self.atol + self.rtol * a, 8 * torch.finfo(y.dtype).eps * (1 + a)) / h
+            k = torch.add(k, k - k_old, alpha=(h_prev + h) / (2 * spacing))
+        a = torch.add(y, k, alpha=h).abs_()
+        floor = 8 * torch.finfo(y.dtype).eps
+        if self.rtol >= floor and self.atol >= floor:
+            tol = a.mul_(self.rtol / h).add_(self.atol / h)
+        else:
+            tol = torch.maximum(self.atol + self.rtol * a, floor * (1 + a)) / h
         tm = t + h / 2
-        done = torch.zeros(y.shape[0], 1, dtype=torch.bool, device=y.device)
+        done = ~self.rows.alive[:, None] if self.rows.any_stopped else None
         for _ in range(self.options["max_iters"]):
-            k_new = func(tm, y + (h / 2) * k)
-            ok = ((k_new - k).abs() <= tol).all(-1, keepdim=True)
+            k_new = func(tm, torch.add(y, k, alpha=h / 2))
+            close = (k_new - k).abs_() <= tol
+            if done is None:  # no row has converged yet: all rows take the new iterate
+                k = k_new
+                if bool(close.all()):
+                    return torch.add(y, k, alpha=h), (k, h, cache[0], (h_prev + h) / 2)
+                ok = close.all(-1, keepdim=True)
+                if bool(ok.any()):
+                    done = ok
+                continue
             k = torch.where(done, k, k_new)
-            done = done | ok
+            done = done | close.all(-1, keepdim=True)
             if bool(done.all()):
-                return y + h * k, (k, h, cache[0], (h_prev + h) / 2)
-        n_bad = int((~done).sum())
-        finite = bool(torch.isfinite(k_new).all())
-        raise RuntimeError(
-            f"implicit_midpoint: the fixed-point iteration did not converge in "
-            f"{self.options['max_iters']} iterations for {n_bad} of {y.shape[0]} rows at "
-            f"t = {self.sign * float(t):.6g} with step size h = {h:.3g}"
-            f"{'' if finite else ' (the iterates became non-finite)'}. "
-            "It contracts only for h * Lipschitz(f) / 2 < 1: use a smaller step_size."
-        )
+                return torch.add(y, k, alpha=h), (k, h, cache[0], (h_prev + h) / 2)
+        failed = ~done[:, 0] if done is not None else torch.ones_like(self.rows.alive)
+        finite = torch.isfinite(k_new).all(-1)
+        t_fail = self.sign * (float(t) + h / 2)
+        self.rows.stop(failed & finite, Status.NOT_CONVERGED, t_fail)
+        self.rows.stop(failed, Status.DIVERGED, t_fail)
+        k = torch.where(failed[:, None], 0.0, k)
+        return torch.add(y, k, alpha=h), (k, h, cache[0], (h_prev + h) / 2)
 
 
 # Dormand-Prince 5(4): nodes, stage rows, 5th-order weights (row 7), error weights
@@ -301,12 +422,17 @@ class Dopri5(_Solver):
     flows through the step-size control.
 
     Options: ``max_steps`` attempted steps per row (default 100000), ``first_step``
-    for all rows instead of the heuristic. RuntimeError on too many steps or a step-size
-    underflow (a field returning NaN, a singularity, ``rtol`` below the dtype's resolution).
+    for all rows instead of the heuristic, ``stiff_steps`` (default 500; ``0``: off).
+    A row stops (:class:`Status`) on a step-size underflow (a singularity, a field
+    returning NaN), a state beyond the blow-up limit, 8 checks in a row (one every 16
+    steps) whose accepted step left the state unchanged (a tolerance below the
+    dtype's resolution), Hairer's stiffness test ``h λ > 3.25`` on about
+    ``stiff_steps`` consecutive accepted steps, or ``max_steps``. Tolerances far below
+    the dtype's resolution raise ValueError before any step.
     """
 
     order = 5
-    defaults = {"max_steps": 100_000, "first_step": None}
+    defaults = {"max_steps": 100_000, "first_step": None, "stiff_steps": 500}
 
     def __init__(self, rtol, atol, step_size, options):
         if step_size is not None:
@@ -336,29 +462,46 @@ class Dopri5(_Solver):
         return self._tables[key]
 
     def step(
-        self, func: Field, t: Tensor, y: Tensor, f: Tensor, h: Tensor
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        self, func: Field, t: Tensor, y: Tensor, f: Tensor, h: Tensor, stiffness: bool = False
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
         """One attempted step of every row from ``t, h (A,)`` (float64), ``y (A, D)``
         and ``f = func(t, y)``: ``y1``, ``f1 = func(t + h, y1)``, the error estimate and
-        the dense-output midpoint ``y(t + h/2)``, each ``(A, D)``.
+        the dense-output midpoint ``y(t + h/2)``, each ``(A, D)``, and (if ``stiffness``)
+        Hairer's stiffness estimate ``h λ = h ‖k7 − k6‖ / ‖y7 − y6‖`` ``(A,)``.
         """
         coef = self._coefficients(y.dtype, t.dtype, y.device)
         tc = torch.addcmul(t[:, None], h[:, None], coef["c"]).to(y.dtype)
         hy = h.to(y.dtype)[:, None]
         ks = [f]
         for i, a in enumerate(coef["a"], start=1):
-            ks.append(func(tc[:, i : i + 1], y + hy * (torch.stack(ks, -1) @ a)))
+            y_stage = y + hy * (torch.stack(ks, -1) @ a)
+            ks.append(func(tc[:, i : i + 1], y_stage))
+            if i == 5:
+                y6 = y_stage
         k = torch.stack(ks, -1)
-        return y + hy * (k @ coef["b"]), ks[-1], hy * (k @ coef["e"]), y + hy * (k @ coef["mid"])
+        y1 = y + hy * (k @ coef["b"])
+        h_lambda = None
+        if stiffness:  # stages 6 and 7 share the time t + h
+            with torch.no_grad():
+                h_lambda = h * (_rms(ks[6] - ks[5]) / _rms(y1 - y6)).to(h.dtype)
+        return y1, ks[-1], hy * (k @ coef["e"]), y + hy * (k @ coef["mid"]), h_lambda
 
-    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Tensor:
+    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Solution:
         B, D = y0.shape
         dtype, dev = y0.dtype, y0.device
         tdtype = torch.float64 if dev.type != "mps" else dtype
         coef = self._coefficients(dtype, tdtype, dev)
+        eps = torch.finfo(dtype).eps
+        if self.rtol < eps / 10 and self.atol < eps / 10 * float(y0.abs().max()):
+            raise ValueError(
+                f"dopri5: rtol = {self.rtol:g}, atol = {self.atol:g} are below {dtype}'s "
+                f"resolution (eps = {eps:.2g}): no step can meet them. Loosen them or "
+                "integrate in float64."
+            )
         tt = t.detach().to(tdtype)
         t_end, span = tt[-1], float(tt[-1] - tt[0])
         out_idx, out_val = [torch.arange(B, device=dev)], [y0]
+        rows = _Rows(y0, self.blowup)
         idx = torch.arange(B, device=dev)
         tc = tt[0].expand(B).clone()
         y = y0
@@ -370,64 +513,77 @@ class Dopri5(_Solver):
         last = tc + 1.01 * h >= t_end
         h = torch.where(last, t_end - tc, h)
         nxt = torch.ones(B, dtype=torch.long, device=dev)
+        stiff_run = torch.zeros(B, dtype=torch.long, device=dev)
+        stall_run = torch.zeros(B, dtype=torch.long, device=dev)
         tiny = torch.finfo(dtype).tiny
-        for _ in range(self.options["max_steps"]):
-            y1, f1, err, mid = self.step(func, tc, y, f, h)
+        stiff_limit = math.ceil(self.options["stiff_steps"] / _CHECK_EVERY) or math.inf
+        for n_step in range(self.options["max_steps"]):
+            check = n_step % _CHECK_EVERY == 0
+            y1, f1, err, mid, h_lambda = self.step(func, tc, y, f, h, stiffness=check)
             with torch.no_grad():
                 tol = (self.atol + self.rtol * torch.maximum(y.abs(), y1.abs())).clamp_min(tiny)
                 ratio = _rms(err / tol).to(tdtype).nan_to_num(nan=math.inf)
-            acc = ratio <= 1
+                acc = ratio <= 1
+                blown = torch.zeros_like(acc)
+                if check:
+                    still = ((y1 - y).abs() <= eps * y.abs()).all(-1) & (f != 0).any(-1)
+                    stiff_run = torch.where(acc, (stiff_run + 1) * (h_lambda > 3.25), stiff_run)
+                    stall_run = torch.where(acc, (stall_run + 1) * still, stall_run)
+                    blown = acc & ~(y1.abs().amax(-1) <= rows.limit[idx])
             t1 = torch.where(acc, torch.where(last, t_end, tc + h), tc)
             upto = torch.searchsorted(tt, t1, right=True)
             counts = upto - nxt
             h1 = h * (0.9 * ratio.pow(-0.2)).clamp(0.2, 10.0)
-            done = acc & last
+            done = acc & last & ~blown
             last = t1 + 1.01 * h1 >= t_end
             h1 = torch.where(last, t_end - t1, h1)
-            bad = (h1 < 1e-14 * t1.abs().clamp(min=span)) & ~done
-            n_bad, n_done, n_out = torch.stack([bad.sum(), done.sum(), counts.sum()]).tolist()
-            if n_bad:
-                self._fail("step size underflow", bad, idx, t1, h1, B, ~torch.isfinite(ratio))
+            under = (h1 < 1e-14 * t1.abs().clamp(min=span)) & ~done
+            stopped = torch.zeros_like(done)
+            if check:
+                under = under | blown | (stall_run >= _STALL_CHECKS) | (stiff_run >= stiff_limit)
+            if bool(under.any()):
+                stops = (
+                    (blown | (under & ~torch.isfinite(ratio)), Status.DIVERGED),
+                    (stall_run >= _STALL_CHECKS, Status.STALLED),
+                    (stiff_run >= stiff_limit, Status.STIFF),
+                    (under, Status.STEP_UNDERFLOW),
+                )
+                for mask, code in stops:
+                    mask = mask & ~stopped & ~done
+                    rows.stop(_scatter(mask, idx, B), code, 0.0)
+                    rows.t_stop[idx[mask]] = self.sign * torch.where(blown, tc, t1)[mask]
+                    stopped = stopped | mask
+                counts = torch.where(blown, 0, counts)
+            n_done, n_out = torch.stack([done.sum(), counts.sum()]).tolist()
             if n_out:
                 start = counts.cumsum(0) - counts
-                rows = torch.bincount(start, minlength=n_out + 1)[:n_out].cumsum(0) - 1
-                j = torch.arange(n_out, device=dev) + (nxt - start)[rows]
-                x = ((tt[j] - tc[rows]) / h[rows]).to(dtype)
+                owner = torch.bincount(start, minlength=n_out + 1)[:n_out].cumsum(0) - 1
+                j = torch.arange(n_out, device=dev) + (nxt - start)[owner]
+                x = ((tt[j] - tc[owner]) / h[owner]).to(dtype)
                 powers = x[:, None].expand(n_out, 4).cumprod(1)[:, :, None]
                 w = coef["dense"][0] + (powers * coef["dense"][1:]).sum(1)
                 hy = h.to(dtype)[:, None]
                 v = torch.stack([y, y1, mid, hy * f, hy * f1], -1)
-                out_val.append((v[rows] * w[:, None]).sum(-1))
-                out_idx.append(j * B + idx[rows])
+                out_val.append((v[owner] * w[:, None]).sum(-1))
+                out_idx.append(j * B + idx[owner])
             a2 = acc[:, None]
             y, f, tc, h, nxt = torch.where(a2, y1, y), torch.where(a2, f1, f), t1, h1, upto
-            if n_done == idx.shape[0]:
+            finished = done | stopped
+            n_finished = n_done + int(stopped.sum()) if rows.any_stopped else n_done
+            if n_finished == idx.shape[0]:
                 break
-            if n_done:
-                keep = ~done
-                idx, y, f, tc, h, nxt, last = (v[keep] for v in (idx, y, f, tc, h, nxt, last))
+            if n_finished:
+                keep = ~finished
+                state = (idx, y, f, tc, h, nxt, last, stiff_run, stall_run)
+                idx, y, f, tc, h, nxt, last, stiff_run, stall_run = (v[keep] for v in state)
         else:
-            everyone = torch.ones_like(idx, dtype=torch.bool)
-            reason = f"more than max_steps = {self.options['max_steps']} steps"
-            self._fail(reason, everyone, idx, tc, h, B, ~everyone)
-        out = y0.new_zeros(t.shape[0] * B, D)
+            rows.stop(
+                _scatter(torch.ones_like(idx, dtype=torch.bool), idx, B), Status.MAX_STEPS, 0.0
+            )
+            rows.t_stop[idx] = self.sign * tc
+        out = y0.new_full((t.shape[0] * B, D), math.nan)
         out = out.index_put((torch.cat(out_idx),), torch.cat(out_val))
-        return out.reshape(t.shape[0], B, D)
-
-    def _fail(self, reason, rows: Tensor, idx, t, h, B: int, nonfinite: Tensor) -> None:
-        n = int(rows.sum())
-        t_r, h_r = (self.sign * t[rows]).tolist(), h[rows].tolist()
-        hint = (
-            " The field returned non-finite values on the last attempted step."
-            if bool((nonfinite & rows).any())
-            else " Check the field for singularities, or loosen rtol/atol (float32 cannot "
-            "reach rtol much below 1e-6)."
-        )
-        raise RuntimeError(
-            f"dopri5: {reason} for {n} of {B} trajectories (rows {idx[rows][:5].tolist()}"
-            f"{'...' if n > 5 else ''}), stopped at t = {t_r[0]:.6g} with step size "
-            f"{h_r[0]:.3g}.{hint}"
-        )
+        return Solution(out.reshape(t.shape[0], B, D), rows.status, rows.t_stop)
 
     def _initial_step(self, func: Field, t0: Tensor, y0: Tensor, f0: Tensor) -> Tensor:
         """Hairer's starting step, per row: ``(B,)`` float64 from ``t0 (B,)``, ``y0``, ``f0``.
@@ -448,6 +604,11 @@ class Dopri5(_Solver):
             h1 = torch.where(dm <= 1e-15, torch.clamp(h0 * 1e-3, min=1e-6), (0.01 / dm) ** 0.2)
             h = torch.minimum(100 * h0, h1)
             return torch.where(torch.isfinite(h) & (h > 0), h, 1e-6)
+
+
+def _scatter(mask: Tensor, idx: Tensor, B: int) -> Tensor:
+    """``(B,)`` bool: ``mask (A,)`` of the active rows ``idx (A,)`` placed among all rows."""
+    return torch.zeros(B, dtype=torch.bool, device=mask.device).index_put((idx,), mask)
 
 
 def _rms(x: Tensor) -> Tensor:
@@ -473,7 +634,9 @@ def odeint(
     atol: float = 1e-9,
     step_size: float | None = None,
     options: dict[str, Any] | None = None,
-) -> Tensor:
+    return_status: bool = False,
+    blowup: float = 1e6,
+) -> Tensor | Solution:
     """Integrate ``dy/dt = func(t, y)`` from ``y(t[0]) = y0`` and return ``y(t)``.
 
     Args:
@@ -481,45 +644,85 @@ def odeint(
             may pass a subset); ``t`` has ``y``'s dtype and broadcasts against ``y``: 0-d
             for fixed-step methods, ``(rows, 1)`` for ``dopri5``.
         y0: initial states ``(batch, dim)`` or ``(dim,)``, at ``t[0]``.
-        t: ``(T,)`` strictly monotone output times, cast to ``y0``'s dtype.
+        t: ``(T,)`` finite, strictly monotone output times, cast to ``y0``'s dtype.
         method: a key of :data:`METHODS`.
         rtol, atol: tolerances of ``dopri5`` and of the ``implicit_midpoint`` iteration.
         step_size: fixed-step methods only (module docstring); ``None``: one step per
             output interval.
         options: method-specific options (see each class in :data:`METHODS`).
+        return_status: return a :class:`Solution` (states, per-row status and stop
+            time) instead of raising when a row stops.
+        blowup: a row whose ``|y|∞`` exceeds ``blowup · (1 + |y0|∞)`` has diverged.
 
     Returns:
         ``(T, batch, dim)`` (``(T, dim)`` for 1-D ``y0``), ``y0``'s dtype and device,
-        ``out[0] == y0``.
+        ``out[0] == y0``; a :class:`Solution` of those if ``return_status``.
 
     Raises:
-        ValueError: bad method, option, shape or ``t``, or a ``step_size`` for ``dopri5``.
-        RuntimeError: an implicit step does not converge or ``dopri5`` gives up.
+        ValueError: bad method, option, tolerance, shape or ``t``, a ``step_size`` for
+            ``dopri5``, or a field whose output is not shaped like its input.
+        RuntimeError: a row stopped (:class:`Status`) and ``return_status`` is false.
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; valid methods: {sorted(METHODS)}")
     if not (isinstance(y0, Tensor) and y0.is_floating_point() and y0.ndim in (1, 2)):
         raise ValueError("y0 must be a floating-point tensor of shape (batch, dim) or (dim,)")
-    if rtol < 0 or atol < 0 or (step_size is not None and not step_size > 0):
-        raise ValueError("rtol and atol must be >= 0 and step_size > 0")
+    for name, value in (("rtol", rtol), ("atol", atol)):
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be finite and >= 0, got {value}")
+    if step_size is not None and not (math.isfinite(step_size) and step_size > 0):
+        raise ValueError(f"step_size must be finite and > 0, got {step_size}")
+    if not blowup > 0:
+        raise ValueError(f"blowup must be > 0, got {blowup}")
     solver = METHODS[method](rtol, atol, step_size, options)
+    solver.blowup = blowup
     t = torch.as_tensor(t).to(dtype=y0.dtype, device=y0.device)
     if t.ndim != 1 or t.shape[0] == 0:
         raise ValueError(f"t must be a non-empty 1-D tensor, got shape {tuple(t.shape)}")
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"t must be finite, got {t.tolist()[:8]}")
     squeeze = y0.ndim == 1
     y = y0[None] if squeeze else y0
     if t.shape[0] == 1:
-        out = y[None]
+        B = y.shape[0]
+        sol = Solution(y[None], torch.zeros(B, dtype=torch.long), torch.full((B,), math.nan))
     else:
         dt = t[1:] - t[:-1]
         if bool((dt < 0).all()):
             solver.sign = -1.0
-            out = solver.integrate(_reversed(func), y, -t)
+            sol = solver.integrate(_checked(_reversed(func)), y, -t)
         elif bool((dt > 0).all()):
-            out = solver.integrate(func, y, t)
+            sol = solver.integrate(_checked(func), y, t)
         else:
             raise ValueError("t must be strictly increasing or strictly decreasing")
-    return out[:, 0] if squeeze else out
+    if squeeze:
+        sol = Solution(sol.y[:, 0], sol.status[0], sol.t_stop[0])
+    if return_status:
+        return sol
+    if not bool(sol.ok.all()):
+        raise RuntimeError(sol.describe(method))
+    return sol.y
+
+
+def _checked(func: Field) -> Field:
+    """``func`` that checks, on its first call, that it returns a tensor shaped like ``y``
+    (a ``(B, 1)`` field would broadcast to a wrong answer)."""
+    first = True
+
+    def checked(t: Tensor, y: Tensor) -> Tensor:
+        nonlocal first
+        out = func(t, y)
+        if first:
+            first = False
+            shape = tuple(getattr(out, "shape", ()))
+            if not isinstance(out, Tensor) or out.shape != y.shape:
+                raise ValueError(
+                    f"the vector field returned {type(out).__name__} of shape {shape} for "
+                    f"states of shape {tuple(y.shape)}: it must return dy/dt shaped like y"
+                )
+        return out
+
+    return checked
 
 
 def _reversed(func: Field) -> Field:
@@ -530,14 +733,20 @@ def _reversed(func: Field) -> Field:
 
 
 def scipy_fun(
-    func: Field, shape: tuple[int, ...], dtype: torch.dtype = torch.float64
+    func: Field, shape: tuple[int, ...], dtype: torch.dtype | None = None
 ) -> Callable[[float, np.ndarray], np.ndarray]:
     """``fun(t: float, y_flat) -> dy_flat`` for ``scipy.integrate.solve_ivp``.
 
     Reshapes ``y_flat`` (float64) to ``shape`` (e.g. ``(batch, dim)``) in ``dtype``,
     evaluates ``func`` under ``torch.no_grad`` with a 0-d ``t`` and returns the
     flattened float64 result, so one ``solve_ivp`` call integrates the whole batch.
+    ``dtype=None``: the dtype of the module ``func`` is a method of (e.g.
+    ``model.vector_field`` of a float32 checkpoint), else float64.
     """
+    if dtype is None:
+        owner = getattr(func, "__self__", None)
+        param = next(owner.parameters(), None) if isinstance(owner, torch.nn.Module) else None
+        dtype = param.dtype if param is not None else torch.float64
 
     def fun(t: float, y_flat: np.ndarray) -> np.ndarray:
         with torch.no_grad():
@@ -553,7 +762,7 @@ def scipy_odeint(
     y0: Tensor,
     t: Tensor,
     method: str = "RK45",
-    dtype: torch.dtype = torch.float64,
+    dtype: torch.dtype | None = None,
     **solve_ivp_kwargs: Any,
 ) -> Tensor:
     """``(T, batch, dim)`` float64 states at increasing ``t`` from ``y0 (batch, dim)``.

@@ -392,3 +392,22 @@ def test_scipy_odeint_matches_analytic_spring_and_reports_failure():
     torch.testing.assert_close(out, spring.exact_solution(t, y0), rtol=0, atol=1e-9)
     with pytest.raises(RuntimeError, match="RK45"):
         scipy_odeint(lambda t, y: y**2, torch.ones(1, 1, dtype=F64), torch.tensor([0.0, 2.0]))
+
+
+def test_scipy_fun_takes_the_dtype_of_a_float32_model():
+    """The README's ``solve_ivp(scipy_fun(model.vector_field, y0.shape), …)`` on a
+    float32 checkpoint: scipy's float64 states are cast to the model's dtype."""
+    from scipy.integrate import solve_ivp
+
+    from hnn_pl.models import HNN
+
+    torch.manual_seed(0)
+    model = HNN(input_dim=2, hidden_dim=16)
+    y0 = torch.tensor([[1.0, 0.0], [0.0, 0.5]])
+    fun = scipy_fun(model.vector_field, y0.shape)
+    sol = solve_ivp(fun, (0.0, 1.0), y0.flatten().numpy(), rtol=1e-8, atol=1e-8)
+    assert sol.success
+    with torch.no_grad():
+        ours = odeint(model.vector_field, y0, torch.tensor([0.0, 1.0]), rtol=1e-6, atol=1e-6)
+    got = torch.from_numpy(sol.y[:, -1]).reshape(2, 2).float()
+    torch.testing.assert_close(got, ours[-1], rtol=0, atol=1e-4)

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from hnn_pl.integrate import odeint
+from hnn_pl.integrate import Status, odeint
 from hnn_pl.systems.mass_spring import MassSpring
 from hnn_pl.systems.pendulum import Pendulum
 
@@ -142,3 +142,125 @@ def test_rk4_batch_of_1000_pendulums_float32_stays_finite():
     assert out.dtype == F32 and torch.isfinite(out).all()
     drift = (pend.hamiltonian(out[-1]) - pend.hamiltonian(y0)).abs().max()
     assert drift < 1e-2, f"energy drift {drift:.3e}"
+
+
+def _cliff(t, y):
+    """A pendulum, ``(q̇, ṗ) = (p, -sin q)``, with a cliff beyond ``q = 4`` where
+    ``ṗ`` gains ``1e3 (q - 4)³``: a start past the cliff blows up in finite time,
+    starts with ``|q| < π`` never reach it. Rows are independent."""
+    q, p = y[..., :1], y[..., 1:]
+    return torch.cat([p, -torch.sin(q) + 1e3 * torch.relu(q - 4) ** 3], -1)
+
+
+CLEAN = torch.tensor([[0.5, 0.0], [-1.0, 0.3], [2.0, -0.5]], dtype=F64)
+CLIFF = torch.tensor([[4.5, 1.0]], dtype=F64)
+
+
+@pytest.mark.parametrize(
+    ("method", "kwargs"),
+    [
+        ("rk4", {"step_size": 0.01}),
+        ("leapfrog", {"step_size": 0.01}),
+        ("implicit_midpoint", {"step_size": 0.01}),
+        ("dopri5", {"rtol": 1e-9, "atol": 1e-9}),
+    ],
+)
+def test_a_diverging_row_stops_alone(method, kwargs):
+    """The blown-up row stops with its time; the others equal a run without it (dopri5:
+    to the rounding of batched kernels, as a row alone and in a batch differ, ≈1e-15)."""
+    t = torch.linspace(0, 3, 31, dtype=F64)
+    clean = odeint(_cliff, CLEAN, t, method=method, **kwargs)
+    sol = odeint(
+        _cliff, torch.cat([CLEAN[:2], CLIFF, CLEAN[2:]]), t, method, return_status=True, **kwargs
+    )
+    tol = 1e-13 if method == "dopri5" else 0.0
+    torch.testing.assert_close(sol.y[:, [0, 1, 3]], clean, rtol=0, atol=tol)
+    assert sol.status.tolist()[:2] == [Status.OK, Status.OK] and sol.status[3] == Status.OK
+    assert sol.status[2] != Status.OK and 0 < float(sol.t_stop[2]) < 3.0
+    stop = int(torch.searchsorted(t, sol.t_stop[2]))
+    assert torch.isnan(sol.y[stop + 1 :, 2]).all() and torch.isfinite(sol.y[:stop, 2]).all()
+    with pytest.raises(RuntimeError, match=r"1 of 4 rows stopped .* rows \[2\]"):
+        odeint(_cliff, torch.cat([CLEAN[:2], CLIFF, CLEAN[2:]]), t, method, **kwargs)
+
+
+def test_rk4_reports_the_time_of_divergence_backward_too():
+    t = torch.linspace(0, -3, 31, dtype=F64)
+    sol = odeint(_cliff, torch.tensor([[4.5, -1.0]], dtype=F64), t, "rk4", return_status=True)
+    assert sol.status[0] == Status.DIVERGED and -3.0 < float(sol.t_stop[0]) < 0
+
+
+def test_dopri5_collision_stops_that_row_and_finishes_the_others():
+    """Zero angular momentum: the body falls into the centre at t = π/(2√2)."""
+    y0 = torch.tensor([[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 1.0]], dtype=F64)
+    t = torch.linspace(0, 5, 11, dtype=F64)
+    sol = odeint(kepler, y0, t, rtol=1e-10, atol=1e-10, return_status=True)
+    assert sol.status[0] in (Status.STEP_UNDERFLOW, Status.DIVERGED)
+    assert float(sol.t_stop[0]) == pytest.approx(math.pi / 2**1.5, abs=1e-3)
+    assert sol.status[1] == Status.OK and torch.isfinite(sol.y[:, 1]).all()
+
+
+def test_dopri5_stops_a_stiff_row_early():
+    """Van der Pol, μ = 1000: explicit steps are bounded by stability, not accuracy."""
+
+    def vdp(t, y):
+        x, v = y[..., :1], y[..., 1:]
+        return torch.cat([v, 1000 * (1 - x**2) * v - x], -1)
+
+    t = torch.tensor([0.0, 3000.0], dtype=F64)
+    sol = odeint(vdp, torch.tensor([[2.0, 0.0]], dtype=F64), t, return_status=True)
+    assert sol.status[0] == Status.STIFF and float(sol.t_stop[0]) < 30
+    with pytest.raises(RuntimeError, match="stiff"):
+        odeint(vdp, torch.tensor([[2.0, 0.0]], dtype=F64), t)
+
+
+def test_unreachable_tolerance_fails_before_any_step():
+    y0 = torch.tensor([[1.0, 0.0]], dtype=F32)
+    t = torch.tensor([0.0, 20.0], dtype=F32)
+    with pytest.raises(ValueError, match="resolution"):
+        odeint(MassSpring().vector_field, y0, t, rtol=1e-14, atol=1e-14)
+
+
+@pytest.mark.parametrize("method", ["euler", "rk4", "leapfrog", "implicit_midpoint", "dopri5"])
+def test_a_field_of_the_wrong_shape_is_refused(method):
+    y0 = torch.tensor([[1.0, 0.0]], dtype=F64)
+    with pytest.raises(ValueError, match=r"shape \(1, 1\) for states of shape \(1, 2\)"):
+        odeint(lambda t, y: y[:, :1], y0, torch.tensor([0.0, 1.0], dtype=F64), method)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"t": [0.0, math.inf]}, "t must be finite"),
+        ({"rtol": math.nan}, "rtol must be finite"),
+        ({"atol": -1.0}, "atol must be finite"),
+        ({"method": "rk4", "step_size": math.nan}, "step_size"),
+    ],
+)
+def test_bad_times_and_tolerances_are_refused(kwargs, match):
+    args = {"t": [0.0, 1.0], "method": "dopri5", **kwargs}
+    t = torch.tensor(args.pop("t"), dtype=F64)
+    with pytest.raises(ValueError, match=match):
+        odeint(MassSpring().vector_field, torch.ones(1, 2, dtype=F64), t, **args)
+
+
+class _CliffField(torch.nn.Module):
+    """A module whose ``vector_field`` is :func:`_cliff` (no parameters)."""
+
+    def vector_field(self, t, y):
+        return _cliff(t, y)
+
+
+def test_rollout_scores_the_finite_rows_and_counts_the_others():
+    from hnn_pl import rollouts
+
+    y0 = torch.cat([CLEAN, CLIFF])
+    t = torch.linspace(0, 3, 31, dtype=F64)
+    out = rollouts.rollout(_CliffField(), y0, t, "rk4", step_size=0.01)
+    assert out.status.tolist() == [0, 0, 0, Status.DIVERGED] and torch.isnan(out.y[-1, 3]).all()
+    y_true = odeint(_cliff, CLEAN, t, "rk4", step_size=0.01)
+    truth = torch.cat([y_true, torch.zeros(31, 1, 2, dtype=F64)], 1)
+    energy = Pendulum().energy
+    r = rollouts.Rollout(t, truth, out.y, energy(truth), energy(out.y), status=out.status)
+    metrics = rollouts.score(r)
+    assert metrics["diverged_rows"] == 1 and metrics["energy_mse"] == 0.0
+    assert metrics["state_mse"] == 0.0
