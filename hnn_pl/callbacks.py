@@ -41,8 +41,10 @@ class RolloutCallback(Callback):
     nothing is computed that is not recorded), and in ``test``, rank zero:
     :func:`hnn_pl.rollouts.evaluate` on all held-out starts in one batch, logged as
     ``rollout/<metric>`` (``energy_mse`` = ``mean_{t,b} (E(y_true) − E(y_pred))²``,
-    ``state_mse``, ``conserved_drift`` (HNN); pixel: ``pixel_mse``, ``latent_mse``,
-    ``probe_mse``). With ``log_images`` and TensorBoard: ``rollout/phase_portrait``,
+    ``state_mse``, ``motion_error``, ``conserved_drift`` (HNN); pixel: ``pixel_mse``,
+    ``latent_mse``, ``probe_mse``) over the rows that stayed finite, and
+    ``rollout/diverged_rows``: a diverging row stops alone and the fit goes on.
+    With ``log_images`` and TensorBoard: ``rollout/phase_portrait``,
     ``rollout/energy``, pixel ``rollout/frames``.
 
     Args:

@@ -149,8 +149,10 @@ def score_reference(model: Any, case: ReferenceCase, solver: str = "scipy") -> d
 
             y0 = torch.cat([case.y0, case.stretch[:, None]], -1)
         with torch.no_grad():
-            y_pred = odeint(field, y0, case.t, method="dopri5", rtol=p.rtol, atol=atol)
-        y_pred = y_pred[..., : case.y0.shape[-1]]
+            sol = odeint(field, y0, case.t, "dopri5", p.rtol, atol, return_status=True)
+        if not bool(sol.ok.all()):  # a diverging model is as far from the target as can be
+            return {"energy_mse": math.inf, "motion_error": math.inf, "t_end": float(case.t[-1])}
+        y_pred = sol.y[..., : case.y0.shape[-1]]
     elif solver == "scipy":
         y_pred = _scipy_rollout(f, case.y0, case.t, p, case.stretch)
     else:
@@ -179,7 +181,7 @@ def evaluate_protocol(model: Any, dm: Any, protocol: Protocol) -> dict[str, floa
     """:func:`hnn_pl.rollouts.score`'s metrics under ``protocol`` plus the grouped
     ``energy_mse_pm``, ``n_trajectories`` and ``t_end``."""
     metrics, r = rollouts.evaluate(model, dm, protocol)
-    per_traj = rollouts.energy_mse_per_trajectory(r)
+    per_traj = rollouts.energy_mse_per_trajectory(r.rows(r.status == 0))
     metrics["energy_mse_pm"] = grouped_mean(per_traj, protocol.n_groups)[1]
     return {**metrics, "n_trajectories": r.y_true.shape[1], "t_end": float(r.t[-1])}
 

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 
-from hnn_pl.integrate import odeint
+from hnn_pl.integrate import Solution, odeint
 from hnn_pl.protocols import Protocol
 
 
@@ -35,7 +35,8 @@ class Rollout:
     inputs). Pixel models: ``y``/``e`` are the linear probe's ``(q, p) = (θ, c·θ̇)``;
     ``z_true``/``z_pred (T, B, L)`` encoded and integrated latents, ``x_true``/``x_pred
     (T, B, 1568)`` frame pairs, ``probe (L + 1, 2)`` with ``(q, p) ≈ [z, 1] @ probe``
-    and its training residual ``probe_mse``."""
+    and its training residual ``probe_mse``. ``status (B,)``: each row's
+    :class:`hnn_pl.integrate.Status` (rows that diverged are NaN after their stop)."""
 
     t: Tensor
     y_true: Tensor
@@ -50,10 +51,19 @@ class Rollout:
     x_pred: Tensor | None = None
     probe: Tensor | None = None
     probe_mse: Tensor | float = 0.0
+    status: Tensor | None = None
 
     @property
     def is_pixel(self) -> bool:
         return self.x_pred is not None
+
+    def rows(self, keep: Tensor) -> Rollout:
+        """The rollout of the rows ``keep (B,)`` (bool) only."""
+        per_row = ("y_true", "y_pred", "e_true", "e_pred", "h_pred")
+        per_row += ("z_true", "z_pred", "x_true", "x_pred")
+        picked = {k: getattr(self, k)[:, keep] for k in per_row if getattr(self, k) is not None}
+        status = None if self.status is None else self.status[keep]
+        return replace(self, **picked, status=status)
 
 
 def _dtype(protocol_dtype: str | torch.dtype | None) -> torch.dtype | None:
@@ -69,18 +79,21 @@ def integrate_field(
     method: str = "dopri5",
     dtype: str | torch.dtype | None = torch.float64,
     **kwargs: Any,
-) -> tuple[Tensor, nn.Module]:
-    """``(T, B, D)`` states of ``field.vector_field`` from ``y0 (B, D)`` over ``t (T,)``,
-    and the field used: a copy in ``dtype`` (float64 keeps the rollout's error far
-    below the model's), or the field itself for ``"model"``/``None``."""
+) -> tuple[Solution, nn.Module]:
+    """The :class:`~hnn_pl.integrate.Solution` of ``field.vector_field`` from ``y0 (B,
+    D)`` over ``t (T,)`` (states ``(T, B, D)``; a row that diverges stops alone), and
+    the field used: a copy in ``dtype`` (float64 keeps the rollout's error far below
+    the model's), or the field itself for ``"model"``/``None``."""
     dtype = _dtype(dtype)
     param = next(field.parameters(), None)
     if dtype is not None and param is not None and param.dtype != dtype:
         field = copy.deepcopy(field).to(dtype)
     dtype = dtype or (param.dtype if param is not None else y0.dtype)
     with torch.no_grad():
-        y = odeint(field.vector_field, y0.to(dtype), t.to(dtype), method=method, **kwargs)
-    return y, field
+        sol = odeint(
+            field.vector_field, y0.to(dtype), t.to(dtype), method, return_status=True, **kwargs
+        )
+    return sol, field
 
 
 def _learned_h(field: nn.Module, y: Tensor) -> Tensor | None:
@@ -100,10 +113,13 @@ def is_pixel_model(model: Any) -> bool:
 class Trajectories:
     """What :func:`rollout` returns: ``t (T,)``, states ``y (T, B, D)`` (pixel: latents),
     the learned ``h (T, B)`` (HNN), ``energy (T, B)`` (when given), decoded ``frames
-    (T, B, input_dim)`` (pixel)."""
+    (T, B, input_dim)`` (pixel), and each row's ``status (B,)``
+    (:class:`hnn_pl.integrate.Status`; a diverged row is NaN after ``t_stop (B,)``)."""
 
     t: Tensor
     y: Tensor
+    status: Tensor
+    t_stop: Tensor
     h: Tensor | None = None
     energy: Tensor | None = None
     frames: Tensor | None = None
@@ -147,8 +163,10 @@ def rollout(
             pixel = is_pixel_model(model)
             z0 = model.encode(y0) if pixel else y0
             field = getattr(model, "field", model)
-            y, field = integrate_field(field, z0, torch.as_tensor(t), method, dtype, **kwargs)
-            out = Trajectories(t=torch.as_tensor(t).to(y.dtype), y=y, h=_learned_h(field, y))
+            sol, field = integrate_field(field, z0, torch.as_tensor(t), method, dtype, **kwargs)
+            y = sol.y
+            out = Trajectories(torch.as_tensor(t).to(y.dtype), y, sol.status, sol.t_stop)
+            out.h = _learned_h(field, y)
             if pixel:
                 out.frames = model.decode(y.to(z0.dtype))
             if energy is not None:
@@ -189,9 +207,11 @@ def _run_state(model: Any, dm: Any, p: Protocol) -> Rollout:
     y_true = y_true[:, : p.max_starts].to(device)
     kw = p.solver_kwargs()
     field = getattr(model, "field", model)
-    y_pred, field = integrate_field(field, y_true[0], t.to(device), dtype=p.dtype, **kw)
+    sol, field = integrate_field(field, y_true[0], t.to(device), dtype=p.dtype, **kw)
+    y_pred = sol.y
     y_true = y_true.to(y_pred.dtype)
     r = Rollout(t.to(y_pred.dtype), y_true, y_pred, dm.energy(y_true), dm.energy(y_pred))
+    r.status = sol.status
     r.h_pred = _learned_h(field, y_pred)
     if r.h_pred is not None:
         r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
@@ -221,7 +241,8 @@ def _run_pixel(model: Any, dm: Any, p: Protocol) -> Rollout:
     z_true = model.encode(x_true)
     t_model = torch.arange(len(t), dtype=torch.float64, device=device) * model.frame_dt
     kw = p.solver_kwargs()
-    z_pred, field = integrate_field(model.field, z_true[0], t_model, dtype=p.dtype, **kw)
+    sol, field = integrate_field(model.field, z_true[0], t_model, dtype=p.dtype, **kw)
+    z_pred = sol.y
     qp_true = dm.canonical(y_true.to(device)).double()
     qp_pred = apply_probe(probe, z_pred)
     r = Rollout(
@@ -236,6 +257,7 @@ def _run_pixel(model: Any, dm: Any, p: Protocol) -> Rollout:
         x_pred=model.decode(z_pred.to(z_true.dtype)),
         probe=probe,
         probe_mse=probe_mse,
+        status=sol.status,
     )
     r.h_pred = _learned_h(field, z_pred)
     if r.h_pred is not None:
@@ -275,19 +297,30 @@ def motion_error(y_pred: Tensor, y_true: Tensor, fraction: float = 0.1) -> Tenso
 
 
 def score(r: Rollout) -> dict[str, float]:
-    """Every metric of a rollout, unprefixed.
+    """Every metric of a rollout, unprefixed, over the rows that did not diverge.
 
     - ``energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²``;
     - ``state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
     - ``motion_error``: see :func:`motion_error`;
     - ``conserved_drift`` (HNN): see :func:`conserved_drift`;
+    - ``diverged_rows``: how many rows stopped early (the others are scored; all NaN
+      if none is left);
     - pixel models also ``pixel_mse`` (decoded vs true frame pairs), ``latent_mse``
       (integrated vs encoded true pairs) and ``probe_mse``.
     """
+    diverged = 0 if r.status is None else int((r.status != 0).sum())
+    if diverged:
+        r = r.rows(r.status == 0)
+    if r.y_true.shape[1] == 0:
+        names = ["energy_mse", "state_mse", "motion_error"] + ["conserved_drift"] * (
+            r.h_pred is not None
+        )
+        return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged)}
     out = {
         "energy_mse": energy_mse_per_trajectory(r).mean(),
         "state_mse": ((r.y_true - r.y_pred) ** 2).mean(),
         "motion_error": motion_error(r.y_pred, r.y_true),
+        "diverged_rows": diverged,
     }
     if r.h_pred is not None:
         out["conserved_drift"] = conserved_drift(r)
