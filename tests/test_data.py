@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 
@@ -99,3 +101,42 @@ def test_full_batch_epochs_repeat_the_batch(tmp_path):
     mini = _spring(tmp_path, batch_size=100, full_batch_steps=7)
     mini.setup()
     assert len(mini.train_dataloader()) == 8
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda b: b[: len(b) // 2],
+        lambda b: b"garbage" * 100,
+        lambda b: b"",
+        lambda b: b[:-300] + bytes(300),
+    ],
+    ids=["truncated", "garbage", "empty", "zeroed-tail"],
+)
+def test_a_corrupt_cache_is_named_and_rebuilt(tmp_path, damage):
+    first = _spring(tmp_path)
+    first.setup()
+    path = first.cache_path
+    path.write_bytes(damage(path.read_bytes()))
+    again = _spring(tmp_path)
+    with pytest.warns(UserWarning, match=f"data cache {path}.*rebuilding"):
+        again.setup()
+    assert torch.equal(first.x_train, again.x_train)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _spring(tmp_path).setup()  # rebuilt: read back without complaint
+
+
+def test_a_cache_with_a_wrong_checksum_or_parameters_is_rebuilt(tmp_path):
+    first = _spring(tmp_path)
+    first.setup()
+    payload = torch.load(first.cache_path, weights_only=True)
+    payload["data"]["x_train"][0, 0] += 1.0
+    torch.save(payload, first.cache_path)
+    with pytest.warns(UserWarning, match="checksum"):
+        _spring(tmp_path).setup()
+    payload = torch.load(first.cache_path, weights_only=True)
+    payload["params"]["noise_std"] = 0.5
+    torch.save(payload, first.cache_path)
+    with pytest.warns(UserWarning, match="other parameters"):
+        _spring(tmp_path).setup()

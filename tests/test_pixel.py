@@ -145,7 +145,7 @@ def test_rollout_truth_extends_beyond_the_stored_horizon(tmp_path):
     e = dm.energy(dm.test_y)
     q, p = dm.test_y[..., 0], 0.25 * dm.test_y[..., 1]
     torch.testing.assert_close(e, 1.875 * (1 - torch.cos(q)) + p**2)
-    with pytest.raises(ValueError, match="held out"):
+    with pytest.raises(ValueError, match="holds out 0"):
         PixelPendulumData(n_trajectories=2, test_fraction=0.1)
 
 

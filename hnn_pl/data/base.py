@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ import lightning as L
 import torch
 from torch import Tensor
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 def default_cache_dir() -> Path:
@@ -163,6 +164,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         super().__init__()
         if dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+        require(
+            batch_size is None or batch_size >= 1, f"batch_size must be >= 1 or null: {batch_size}"
+        )
+        require(full_batch_steps >= 1, f"full_batch_steps must be >= 1: {full_batch_steps}")
         self.batch_size = batch_size
         self.full_batch_steps = full_batch_steps
         self.seed = int(os.environ.get("PL_GLOBAL_SEED", 0)) if seed is None else seed
@@ -184,30 +189,68 @@ class TrajectoryDataModule(L.LightningDataModule):
         """Make the data set from scratch (float64 tensors)."""
         raise NotImplementedError
 
+    def _cache_params(self) -> dict[str, Any]:
+        return {"class": type(self).__name__, "version": CACHE_VERSION, **self.cache_params()}
+
     @property
     def cache_path(self) -> Path:
         """``cache_dir/<ClassName>-<hash of cache_params>.pt``."""
-        params = {"class": type(self).__name__, "version": CACHE_VERSION, **self.cache_params()}
-        key = hashlib.sha256(json.dumps(params, sort_keys=True, default=str).encode()).hexdigest()
+        params = json.dumps(self._cache_params(), sort_keys=True, default=str)
+        key = hashlib.sha256(params.encode()).hexdigest()
         return self.cache_dir / f"{type(self).__name__}-{key[:16]}.pt"
 
     def prepare_data(self) -> None:
-        """Generate and cache the data set unless the cache already holds it."""
+        """Generate and cache the data set unless a valid cache already holds it.
+
+        A cache file holds ``{"data", "params", "sha256"}``: the tensors, the
+        parameters that made them and a SHA-256 of their bytes. A file that cannot
+        be read, or whose parameters or checksum disagree, is reported and rebuilt.
+        Files are written whole (a temporary file renamed into place).
+        """
+        self.load_data()
+
+    def load_data(self) -> dict[str, Tensor]:
+        """The cached float64 tensors, generated and cached first if missing or bad."""
+        data = self._load_cache()
+        if data is None:
+            data = self.generate()
+            self._write_cache(data)
+        return data
+
+    def _write_cache(self, data: dict[str, Tensor]) -> None:
         path = self.cache_path
-        if path.exists():
-            return
-        data = self.generate()
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        torch.save(data, tmp)
+        params = json.loads(json.dumps(self._cache_params(), default=str))
+        torch.save({"data": data, "params": params, "sha256": _checksum(data)}, tmp)
         tmp.replace(path)
+
+    def _load_cache(self) -> dict[str, Tensor] | None:
+        """The cached tensors, or ``None`` (with a warning if a file was there but bad)."""
+        path = self.cache_path
+        if not path.exists():
+            return None
+        try:
+            payload = torch.load(path, weights_only=True)
+            data = payload["data"]
+            params = json.loads(json.dumps(self._cache_params(), default=str))
+            if payload["params"] != params:
+                problem = f"it was made with other parameters ({payload['params']})"
+            elif payload["sha256"] != _checksum(data):
+                problem = "its checksum does not match its contents"
+            else:
+                return data
+        except Exception as err:  # truncated, garbage, empty, an older format
+            first_line = (str(err).strip().splitlines() or [""])[0][:120]
+            problem = f"it cannot be read ({type(err).__name__}: {first_line})"
+        warnings.warn(f"data cache {path}: {problem}; rebuilding it", stacklevel=3)
+        return None
 
     def setup(self, stage: str | None = None) -> None:
         """Load the cached data (generating it if needed) in the served dtype."""
         if self.data is not None:
             return
-        self.prepare_data()
-        raw = torch.load(self.cache_path, weights_only=True)
+        raw = self.load_data()
         self.data = {k: v.to(self.dtype) if v.is_floating_point() else v for k, v in raw.items()}
         for key, value in self.data.items():
             setattr(self, key, value)
@@ -275,3 +318,34 @@ class TrajectoryDataModule(L.LightningDataModule):
             y = self.system.trajectory(self.test_y[0].to(torch.float64), t)
             self._rollout_cache[key] = (t.to(self.dtype), y.to(self.dtype))
         return self._rollout_cache[key]
+
+
+def _checksum(data: dict[str, Tensor]) -> str:
+    """SHA-256 over the names, dtypes, shapes and bytes of ``data``'s tensors."""
+    digest = hashlib.sha256()
+    for key in sorted(data):
+        value = data[key].detach().cpu().contiguous()
+        digest.update(f"{key}:{value.dtype}:{tuple(value.shape)}".encode())
+        digest.update(value.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
+
+
+def require(condition: bool, message: str) -> None:
+    """Raise ``ValueError(message)`` unless ``condition``: arguments are checked when an
+    object is built, before any data, directory or log is made."""
+    if not condition:
+        raise ValueError(message)
+
+
+def split_sizes(n: int, test_fraction: float) -> int:
+    """Held-out count ``round(test_fraction · n)``, checked to leave both splits
+    non-empty."""
+    require(n >= 2, f"n_trajectories must be >= 2 (one to train, one to test): {n}")
+    require(0 < test_fraction < 1, f"test_fraction must lie in (0, 1): {test_fraction}")
+    n_test = round(test_fraction * n)
+    require(
+        0 < n_test < n,
+        f"test_fraction {test_fraction} of {n} trajectories holds out {n_test}: "
+        "need at least one in each split",
+    )
+    return n_test

@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from hnn_pl.data.base import TrajectoryDataModule
+from hnn_pl.data.base import TrajectoryDataModule, split_sizes
 from hnn_pl.systems.base import system_spec
 from hnn_pl.systems.pixel_pendulum import PixelPendulum
 
@@ -91,12 +91,7 @@ class PixelPendulumData(TrajectoryDataModule):
             raise ValueError(f"n_frames must be >= 4 (one sample needs 4 frames), got {n_frames}")
         if rollout_frames < 1:
             raise ValueError(f"rollout_frames must be >= 1, got {rollout_frames}")
-        self.n_test = round(test_fraction * n_trajectories)
-        if not 0 < self.n_test < n_trajectories:
-            raise ValueError(
-                f"test_fraction {test_fraction} of {n_trajectories} trajectories leaves "
-                f"{self.n_test} held out: need at least one for each split"
-            )
+        self.n_test = split_sizes(n_trajectories, test_fraction)
         self.n_trajectories, self.n_frames = n_trajectories, n_frames
         self.rollout_frames, self.test_fraction = rollout_frames, test_fraction
         self.size, self.render_filter, self.supersample = size, render_filter, supersample
@@ -148,8 +143,7 @@ class PixelPendulumData(TrajectoryDataModule):
         """Load (or generate) the trajectories, render them and form the samples."""
         if self.data is not None:
             return
-        self.prepare_data()
-        d = torch.load(self.cache_path, weights_only=True)  # float64: render from exact θ
+        d = self.load_data()  # float64: render from exact θ
         state = torch.stack([d["theta"], d["omega"]], -1).to(self.dtype)  # (N, F, 2)
         p = self.pairs(self.render(d["theta"]))  # (N, F - 1, 1568)
         x, nx, y = p[:, 1:-1], p[:, 2:], state[:, 2:-1]  # P_k, P_{k+1}, state of frame k + 1

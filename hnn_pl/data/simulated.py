@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from hnn_pl.data.base import TrajectoryDataModule
+from hnn_pl.data.base import TrajectoryDataModule, require, split_sizes
 from hnn_pl.systems.base import HamiltonianSystem, system_spec
 
 
@@ -49,6 +50,11 @@ class SimulatedData(TrajectoryDataModule):
         dtype: str = "float32",
     ) -> None:
         super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
+        split_sizes(n_trajectories, test_fraction)
+        require(n_points >= 2, f"n_points must be >= 2: {n_points}")
+        t0, t1 = (float(t) for t in t_span)
+        require(math.isfinite(t0) and math.isfinite(t1) and t1 > t0, f"bad t_span {t_span}")
+        require(math.isfinite(noise_std) and noise_std >= 0, f"noise_std must be >= 0: {noise_std}")
         self.save_hyperparameters(ignore=["system", "cache_dir"])
         self.system = system
         self.hparams["system"] = system_spec(system)
