@@ -1,10 +1,14 @@
 """Entry point: ``python -m hnn_pl <command> ...``, or the console script ``hnn-pl``.
 
-The top-level help is printed without importing Lightning, so it is instant.
+The top-level help is printed without importing Lightning, so it is instant. Bad
+input (a bad option value, file or config, a non-finite loss) ends with one line,
+``<prog>: error: <what>``, and exit status 2; ``HNN_PL_TRACEBACK=1`` shows the
+traceback.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -19,6 +23,8 @@ commands:
   predict    predicted dy/dt on the held-out states
   reproduce  train and evaluate every task x model x seed, write RESULTS.md
              ({prog} reproduce --help)
+  stress     numerical stability of integrators and trained models, write
+             STABILITY.md ({prog} stress --help)
 
 A --config that is not a file is looked up in the bundled configs (".yaml" optional).
 Classes go by their short names: {prog} fit --model HNN --data SimulatedData
@@ -48,13 +54,42 @@ def main(argv: list[str] | None = None) -> None:
 
         print(f"hnn_pl {__version__}")
         return
-    if argv[0] == "reproduce":
-        from hnn_pl.reproduce import main as reproduce
+    try:
+        if argv[0] == "reproduce":
+            from hnn_pl.reproduce import main as reproduce
 
-        sys.exit(reproduce(argv[1:]))
-    from hnn_pl.cli import cli_main
+            sys.exit(reproduce(argv[1:]))
+        if argv[0] == "stress":
+            from hnn_pl.stress import main as stress
 
-    cli_main(argv)
+            sys.exit(stress(argv[1:]))
+        from hnn_pl.cli import cli_main
+
+        cli_main(argv)
+    except Exception as err:
+        message = user_error(err)
+        if message is None or os.environ.get("HNN_PL_TRACEBACK"):
+            raise
+        print(f"{program_name()}: error: {message}", file=sys.stderr)
+        sys.exit(2)
+
+
+#: what bad input raises; anything else is a bug and keeps its traceback
+USER_ERRORS = (ValueError, OSError, FloatingPointError)
+
+
+def user_error(err: BaseException) -> str | None:
+    """The message of the innermost bad-input exception behind ``err`` (jsonargparse
+    wraps the one an ``__init__`` raised), or ``None`` if there is none."""
+    found, seen = None, set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, USER_ERRORS):
+            found = err
+        err = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
+    if found is None:
+        return None
+    return (str(found).strip().splitlines() or [type(found).__name__])[0]
 
 
 if __name__ == "__main__":

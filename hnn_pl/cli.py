@@ -12,6 +12,8 @@ from __future__ import annotations
 import logging
 import os
 import warnings
+from pathlib import Path
+from typing import Any
 
 from lightning.pytorch import LightningDataModule, LightningModule
 from lightning.pytorch.cli import (
@@ -90,11 +92,62 @@ class HNNCLI(LightningCLI):
             help="torch threads: a number, or auto (cores not busy with other processes)",
         )
 
+    def parse_arguments(self, parser, args) -> None:
+        """Parse, then refuse a ``--ckpt_path`` of another model class than the config's
+        (LightningCLI would otherwise build the checkpoint's class under the config's
+        run name)."""
+        super().parse_arguments(parser, args)
+        sub = self.config.get("subcommand")
+        config = self.config.get(sub) if sub else None
+        ckpt_path = config.get("ckpt_path") if config else None
+        if ckpt_path and Path(ckpt_path).is_file():
+            _refuse_other_model_class(ckpt_path, config.get("model"))
+
     def before_instantiate_classes(self) -> None:
         import torch
 
         config = self.config.get(str(self.subcommand), self.config)
         torch.set_num_threads(choose_threads(config.get("threads", "auto")))
+        _refuse_explicit_input_dim(config.get("model"))
+        if "weights_only" in config and config["weights_only"] is None:
+            config["weights_only"] = True  # a checkpoint cannot run code when loaded
+
+
+def _class(path: str) -> type:
+    import importlib
+
+    module, name = path.rsplit(".", 1)
+    return getattr(importlib.import_module(module), name)
+
+
+def _refuse_other_model_class(ckpt_path: str, model: Any) -> None:
+    import torch
+
+    class_path = getattr(model, "class_path", None)
+    ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
+    saved = ckpt.get("hnn_pl_model_class") or ckpt.get("hyper_parameters", {}).get("_class_path")
+    if class_path and saved and _class(saved) is not _class(class_path):
+        raise ValueError(
+            f"checkpoint {ckpt_path} holds a {saved} but the config builds a {class_path}: "
+            "use the config the checkpoint was trained with"
+        )
+
+
+def _refuse_explicit_input_dim(model: Any) -> None:
+    """The link from ``data.state_dim`` silently replaces a given ``input_dim``: refuse
+    one that differs from the class's default (the only way it can be told apart)."""
+    import inspect
+
+    class_path = getattr(model, "class_path", None)
+    given = getattr(getattr(model, "init_args", None), "input_dim", None)
+    if class_path is None or given is None:
+        return
+    params = inspect.signature(_class(class_path)).parameters
+    if "input_dim" in params and given != params["input_dim"].default:
+        raise ValueError(
+            f"model.init_args.input_dim = {given}: the model's input size is taken from the "
+            "data (its state_dim); remove the option"
+        )
 
 
 def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) -> HNNCLI:

@@ -30,9 +30,10 @@ def resolve_config(name: str) -> str:
 
     Raises:
         FileNotFoundError: neither exists; the message lists the bundled configs.
+        ValueError: the file is not a YAML mapping (see :func:`check_config_file`).
     """
     if Path(name).is_file():
-        return name
+        return check_config_file(name)
     for candidate in (CONFIG_DIR / name, CONFIG_DIR / f"{name}.yaml"):
         if candidate.is_file():
             return str(candidate)
@@ -40,6 +41,25 @@ def resolve_config(name: str) -> str:
         f"config {name!r} is neither a file nor one of the bundled configs: "
         + ", ".join(bundled_configs())
     )
+
+
+def check_config_file(path: str) -> str:
+    """``path`` if it holds a YAML mapping; else ValueError naming the file and the fault."""
+    import yaml
+
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+        data = yaml.safe_load(text)
+    except UnicodeDecodeError:
+        raise ValueError(f"config {path}: not a text file (expected UTF-8 YAML)") from None
+    except yaml.YAMLError as err:
+        where = getattr(err, "problem_mark", None)
+        at = f" at line {where.line + 1}, column {where.column + 1}" if where else ""
+        problem = getattr(err, "problem", None) or type(err).__name__
+        raise ValueError(f"config {path}: not valid YAML{at}: {problem}") from None
+    if data is not None and not isinstance(data, dict):
+        raise ValueError(f"config {path}: expected a mapping of options, got {type(data).__name__}")
+    return path
 
 
 def bundled_configs() -> list[str]:

@@ -98,6 +98,19 @@ class RecipeModel(L.LightningModule):
             on_nonfinite=on_nonfinite,
         )
 
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["hnn_pl_model_class"] = _class_path(self)
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Refuse a checkpoint of another model class (a Baseline's weights under an HNN
+        config would otherwise be tested under the HNN's name)."""
+        saved = checkpoint.get("hnn_pl_model_class")
+        if saved is not None and saved != _class_path(self):
+            raise ValueError(
+                f"the checkpoint holds a {saved} but the config builds a {_class_path(self)}: "
+                "use the config the checkpoint was trained with"
+            )
+
     def training_loss(self, batch: Any) -> dict[str, Tensor]:
         """``{"loss": scalar, <part>: scalar, …}`` of a training batch; parts are logged."""
         raise NotImplementedError
@@ -204,3 +217,7 @@ class RecipeModel(L.LightningModule):
             for name, value in parts.items():
                 if name != "loss":
                     self.log(f"train/{name}", value.detach())
+
+
+def _class_path(obj: Any) -> str:
+    return f"{type(obj).__module__}.{type(obj).__qualname__}"
