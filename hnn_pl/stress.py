@@ -1,0 +1,401 @@
+"""``python -m hnn_pl stress [--quick] [--out STABILITY.md]``: numerical stability.
+
+Writes a Markdown report with its figures (in ``<out stem>/``):
+
+1. **Long runs of the true systems** (mass-spring ``H = q² + p²``, pendulum
+   ``H = 3(1 − cos q) + p²``), float64, ``10⁶`` fixed steps of ``h = 0.1`` (quick:
+   2000): relative energy error ``|H(y_t) − H(y_0)| / H(y_0)`` per method, its
+   least-squares slope in time, and its mean over the first and the last tenth of the
+   run; symplectic methods stay bounded, ``rk4`` and ``dopri5`` drift.
+2. **Trained models** (``spring_fast`` HNN and baseline): rollouts to 10× and 100× the
+   training horizon (quick: 2×, 4×, 20 training steps, 5 starts) and from starts at 2×
+   and 5× the training energy: rows that stay
+   finite, true-energy error and the learned ``H_θ``'s drift per method.
+3. **Hard cases**: two-body orbits down to a head-on collision (the adaptive method
+   finishes each row or stops it with a status), a stiff van der Pol oscillator and an
+   unreachable tolerance (both stop early, saying why).
+4. **float32 against float64**, and **reversibility**: integrate to ``T`` and back,
+   ``max |y_back − y_0|`` per method and dtype.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from hnn_pl.integrate import Status, odeint
+from hnn_pl.systems import MassSpring, Pendulum, TwoBody
+
+F32, F64 = torch.float32, torch.float64
+#: fixed-step methods of the long runs and their options; dopri5 runs at rtol = 1e-6
+LONG_METHODS = {
+    "leapfrog": {"options": {"check_separable": False}},
+    "implicit_midpoint": {"rtol": 1e-12, "atol": 1e-14},
+    "rk4": {},
+    "dopri5": {"rtol": 1e-6, "atol": 1e-9},
+}
+LONG_HEADER = ["system", "method", "max", "slope per unit t", "first tenth", "last tenth"]
+LONG_HEADER += ["seconds", "µs per step"]
+TRAINED_HEADER = ["setting", "model", "method", "finite rows", "median |ΔE| / E at the end"]
+TRAINED_HEADER += ["max H_θ drift"]
+STARTS = torch.tensor([[1.0, 0.0], [0.3, -0.6], [-0.5, 1.2]], dtype=F64)
+
+
+def drift_stats(t: Tensor, rel: Tensor) -> dict[str, float]:
+    """Max, slope (per unit time, least squares of the row mean) and first/last-decile
+    means of a relative energy error ``rel (T, B)`` over ``t (T,)``."""
+    m = rel.mean(1)
+    tc = t - t.mean()
+    slope = float((tc * (m - m.mean())).sum() / (tc * tc).sum())
+    k = max(1, len(t) // 10)
+    return {
+        "max": float(rel.max()),
+        "slope": slope,
+        "first": float(m[:k].mean()),
+        "last": float(m[-k:].mean()),
+    }
+
+
+def long_run(system: Any, method: str, n_steps: int, h: float = 0.1, dtype=F64) -> dict:
+    """``n_steps`` steps of ``h`` of the true ``system`` from :data:`STARTS` (for
+    ``dopri5``: the same horizon); the relative energy error at 1000 output times."""
+    n_out = min(1000, n_steps)
+    t = torch.linspace(0, n_steps * h, n_out + 1, dtype=dtype)
+    kwargs = dict(LONG_METHODS[method])
+    if method != "dopri5":
+        kwargs["step_size"] = h
+    y0 = STARTS.to(dtype)
+    start = time.perf_counter()
+    with torch.inference_mode():
+        sol = odeint(system.vector_field, y0, t, method, return_status=True, **kwargs)
+    seconds = time.perf_counter() - start
+    e = system.hamiltonian(sol.y.double())
+    rel = ((e - e[:1]) / e[:1]).abs()
+    stats = drift_stats(t.double(), rel)
+    return {"t": t.double(), "rel": rel, "seconds": seconds, "ok": bool(sol.ok.all()), **stats}
+
+
+def reversibility(system: Any, method: str, dtype, t_end: float = 20.0, h: float = 0.05) -> float:
+    """``max |y_back − y0|`` after integrating to ``t_end`` and back to 0."""
+    kwargs = dict(LONG_METHODS[method])
+    if method == "dopri5":
+        kwargs = {"rtol": 1e-9 if dtype == F64 else 1e-6, "atol": 1e-12 if dtype == F64 else 1e-8}
+    else:
+        kwargs["step_size"] = h
+        if method == "implicit_midpoint" and dtype == F32:
+            kwargs.update(rtol=1e-6, atol=1e-7)
+    y0 = STARTS.to(dtype)
+    t = torch.tensor([0.0, t_end], dtype=dtype)
+    with torch.inference_mode():
+        y1 = odeint(system.vector_field, y0, t, method, **kwargs)[-1]
+        y_back = odeint(system.vector_field, y1, t.flip(0), method, **kwargs)[-1]
+    return float((y_back - y0).abs().max())
+
+
+def hard_cases(quick: bool) -> list[list[str]]:
+    """Two-body orbits of decreasing angular momentum down to a head-on collision, a
+    stiff van der Pol oscillator, an unreachable float32 tolerance."""
+    rows = []
+    system = TwoBody()
+    factors = (1.0, 0.1, 0.01, 1e-3, 0.0)
+    y0 = torch.zeros(len(factors), 8, dtype=F64)
+    y0[:, 0], y0[:, 2] = 1.0, -1.0
+    y0[:, 5] = 0.5 * torch.tensor(factors, dtype=F64)
+    y0[:, 7] = -y0[:, 5]
+    t = torch.linspace(0, 10.0, 101, dtype=F64)
+    start = time.perf_counter()
+    sol = odeint(system.vector_field, y0, t, rtol=1e-10, atol=1e-10, return_status=True)
+    seconds = time.perf_counter() - start
+    for f, code, t_stop in zip(factors, sol.status.tolist(), sol.t_stop.tolist(), strict=True):
+        e = system.hamiltonian(sol.y[:, factors.index(f)])
+        finite = e[torch.isfinite(e)]
+        drift = float(((finite - finite[0]) / finite[0]).abs().max())
+        where = "reached t = 10" if code == Status.OK else f"stopped at t = {t_stop:.4f}"
+        rows.append(
+            [
+                f"two-body, tangential speed {f:g} × circular",
+                Status(code).name.lower(),
+                where,
+                f"{drift:.1e}",
+                f"{seconds:.2f} (whole batch)",
+            ]
+        )
+
+    def vdp(t: Tensor, y: Tensor) -> Tensor:
+        x, v = y[..., :1], y[..., 1:]
+        return torch.cat([v, 1000 * (1 - x**2) * v - x], -1)
+
+    start = time.perf_counter()
+    sol = odeint(
+        vdp, torch.tensor([[2.0, 0.0]], dtype=F64), torch.tensor([0.0, 3000.0]), return_status=True
+    )
+    seconds = time.perf_counter() - start
+    rows.append(
+        [
+            "van der Pol μ = 1000, t ∈ [0, 3000], dopri5",
+            Status(int(sol.status[0])).name.lower(),
+            f"stopped at t = {float(sol.t_stop[0]):.3g}: {sol.describe().split('): ')[-1]}",
+            "—",
+            f"{seconds:.2f}",
+        ]
+    )
+    start = time.perf_counter()
+    try:
+        odeint(
+            MassSpring().vector_field,
+            STARTS.float(),
+            torch.tensor([0.0, 20.0]),
+            rtol=1e-14,
+            atol=1e-14,
+        )
+        outcome = "ran (unexpected)"
+    except ValueError as err:
+        outcome = str(err).split(":")[1].strip()[:90] + "…"
+    rows.append(
+        [
+            "float32 at rtol = atol = 1e-14, dopri5",
+            "refused",
+            outcome,
+            "—",
+            f"{time.perf_counter() - start:.3f}",
+        ]
+    )
+    return rows
+
+
+def trained_models(quick: bool) -> tuple[list[list[str]], dict, tuple[int, int]]:
+    """Train ``spring_fast`` HNN and baseline, roll them out far and from high energy."""
+    from hnn_pl import rollouts
+    from hnn_pl.cli import cli_main
+
+    models, dm = {}, None
+    for name in ("hnn", "baseline"):
+        config = "spring_fast.yaml" if name == "hnn" else "spring_fast_baseline.yaml"
+        args = [
+            f"--config={config}",
+            "--trainer.logger=false",
+            "--trainer.enable_checkpointing=false",
+            "--trainer.enable_progress_bar=false",
+            "--trainer.enable_model_summary=false",
+            "--trainer.callbacks=[]",
+            "--threads=1",
+        ]
+        if quick:
+            args.append("--trainer.max_steps=20")
+        cli = cli_main(args, run=False, save_config=False)
+        cli.trainer.fit(cli.model, cli.datamodule)
+        models[name], dm = cli.model, cli.datamodule
+    t_train = float(dm.t_span[1] - dm.t_span[0])
+    y0 = dm.rollout_target()[1][0].double()[: 5 if quick else None]
+    rows, curves = [], {}
+    far = (2, 4) if quick else (10, 100)
+    settings = [(f"{k}× horizon", k * t_train, 1.0) for k in far]
+    settings += [(f"{k}× energy", far[0] * t_train, float(k)) for k in (2, 5)]
+    methods = {
+        "dopri5": {"rtol": 1e-9, "atol": 1e-9},
+        "rk4": {"step_size": 0.05},
+        "implicit_midpoint": {"step_size": 0.05, "rtol": 1e-10, "atol": 1e-12},
+    }
+    for label, t_end, energy in settings:
+        t = torch.linspace(0, t_end, 501, dtype=F64)
+        starts = y0 * math.sqrt(energy)
+        for name, model in models.items():
+            for method, kw in methods.items():
+                out = rollouts.rollout(model, starts, t, method, energy=dm.energy, **kw)
+                ok = out.status == Status.OK
+                e = out.energy[:, ok]
+                rel = ((e[-1] - e[0]) / e[0]).abs()
+                drift = "—"
+                if out.h is not None and bool(ok.any()):
+                    h = out.h[:, ok]
+                    with torch.no_grad():
+                        scale = float(model.field.hamiltonian(dm.reference_inputs(4096)).std())
+                    drift = f"{float(((h - h[:1]).abs().amax(0) / scale).max()):.1e}"
+                rows.append(
+                    [
+                        label,
+                        name,
+                        method,
+                        f"{int(ok.sum())}/{len(ok)}",
+                        f"{float(rel.median()):.1e}" if bool(ok.any()) else "—",
+                        drift,
+                    ]
+                )
+                if label == f"{far[1]}× horizon" and method in ("dopri5", "implicit_midpoint"):
+                    curves[f"{name}, {method}"] = (t, out.energy.mean(1))
+    return rows, curves, far
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in rows])
+
+
+def figure_long_runs(runs: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    systems = sorted({s for s, _ in runs})
+    fig, axes = plt.subplots(1, len(systems), figsize=(6 * len(systems), 4), squeeze=False)
+    for ax, system in zip(axes[0], systems, strict=True):
+        for (s, method), r in runs.items():
+            if s == system:
+                ax.loglog(r["t"][1:], r["rel"].mean(1)[1:].clamp_min(1e-17), label=method)
+        ax.set(
+            title=f"{system}, float64, h = 0.1", xlabel="t", ylabel="|ΔH| / H (mean of 3 starts)"
+        )
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure_trained(curves: dict, path: Path, factor: int) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for label, (t, e) in curves.items():
+        ax.plot(t, e, label=label)
+    ax.set(
+        title=f"Trained spring models, {factor}× the training horizon",
+        xlabel="t",
+        ylabel="true energy (mean over held-out starts)",
+    )
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(quick: bool = False, out: Path = Path("STABILITY.md")) -> str:
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    n_steps = 2_000 if quick else 1_000_000
+    figures = out.with_suffix("")
+    figures.mkdir(parents=True, exist_ok=True)
+    systems = {"mass-spring": MassSpring(), "pendulum": Pendulum()}
+    runs, rows = {}, []
+    for sname, system in systems.items():
+        for method in LONG_METHODS:
+            r = long_run(system, method, n_steps)
+            runs[(sname, method)] = r
+            rows.append(
+                [
+                    sname,
+                    method,
+                    f"{r['max']:.2e}",
+                    f"{r['slope']:.2e}",
+                    f"{r['first']:.2e}",
+                    f"{r['last']:.2e}",
+                    f"{r['seconds']:.1f}",
+                    f"{r['seconds'] / n_steps * 1e6:.0f}",
+                ]
+            )
+            print(rows[-1], flush=True)
+    figure_long_runs(runs, figures / "long_runs.png")
+    f32_rows = []
+    n32 = n_steps // 10
+    for sname, system in systems.items():
+        for method in LONG_METHODS:
+            r64, r32 = (long_run(system, method, n32, dtype=d) for d in (F64, F32))
+            f32_rows.append([sname, method, f"{r64['max']:.2e}", f"{r32['max']:.2e}"])
+    rev_rows = [
+        [
+            sname,
+            method,
+            f"{reversibility(system, method, F64):.1e}",
+            f"{reversibility(system, method, F32):.1e}",
+        ]
+        for sname, system in systems.items()
+        for method in LONG_METHODS
+    ]
+    hard = hard_cases(quick)
+    trained, curves, far = trained_models(quick)
+    figure_trained(curves, figures / "trained.png", far[1])
+    when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    seconds = time.perf_counter() - start
+    doc = f"""# Numerical stability
+
+Written by `python -m hnn_pl stress{" --quick" if quick else ""}` on {when} ({platform.machine()},
+{torch.get_num_threads()} torch thread, torch {torch.__version__}) in {seconds:.0f} s.
+
+## 1. Long runs of the true systems
+
+{n_steps:,} steps of h = 0.1 in float64 (t ∈ [0, {n_steps / 10:,.0f}]) from 3 starts; dopri5 at
+rtol = 1e-6, atol = 1e-9 over the same horizon. Relative energy error |H(y_t) − H(y_0)| / H(y_0):
+its maximum, the least-squares slope of its mean over time, and its mean over the first and
+last tenth of the run (equal for a bounded error, growing for a drift).
+
+{table(LONG_HEADER, rows)}
+
+![relative energy error over time](long_runs.png)
+
+## 2. Trained models far from their data
+
+`spring_fast.yaml` and its baseline twin (trained on t ∈ [0, 3], energies of radius 0.1–1),
+rolled out in float64 from the held-out starts to {far[0]}× and {far[1]}× the training horizon, and
+from the same starts scaled to 2× and 5× their energy (horizon {far[0]}×). Rows that stay finite,
+median relative change of the true energy at the end, and the largest drift of the learned
+H_θ (HNN; against the spread of H_θ over the training inputs).
+
+{table(TRAINED_HEADER, trained)}
+
+![true energy of trained models at {far[1]}× the training horizon](trained.png)
+
+## 3. Hard cases
+
+{table(["case", "status", "outcome", "max relative energy error", "seconds"], hard)}
+
+## 4. float32 against float64, and reversibility
+
+Maximum relative energy error over {n32:,} steps of h = 0.1:
+
+{table(["system", "method", "float64", "float32"], f32_rows)}
+
+Integrate t ∈ [0, 20] (h = 0.05) and back: max |y_back − y_0|. The symmetric methods
+(leapfrog, implicit midpoint) return to the start up to rounding and the iteration's
+tolerance; rk4 and dopri5 only up to their error.
+
+{table(["system", "method", "float64", "float32"], rev_rows)}
+"""
+    doc = doc.replace("](long_runs.png)", f"]({figures.name}/long_runs.png)")
+    doc = doc.replace("](trained.png)", f"]({figures.name}/trained.png)")
+    out.write_text(doc)
+    return doc
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m hnn_pl stress", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="10⁴ instead of 10⁶ steps; a short training"
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report (default STABILITY.md; quick: STABILITY-quick.md)",
+    )
+    args = parser.parse_args(argv)
+    out = args.out or Path("STABILITY-quick.md" if args.quick else "STABILITY.md")
+    run(args.quick, out)
+    print(f"wrote {out} and its figures in {out.with_suffix('')}/")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
