@@ -9,6 +9,7 @@ traceback.
 from __future__ import annotations
 
 import os
+import pickle
 import sys
 from pathlib import Path
 
@@ -74,8 +75,9 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
 
 
-#: what bad input raises; anything else is a bug and keeps its traceback
-USER_ERRORS = (ValueError, OSError, FloatingPointError)
+#: what bad input raises (pickle's: a checkpoint that is more than weights); anything
+#: else is a bug and keeps its traceback
+USER_ERRORS = (ValueError, OSError, FloatingPointError, pickle.UnpicklingError)
 
 
 def user_error(err: BaseException) -> str | None:

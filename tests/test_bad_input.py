@@ -109,3 +109,25 @@ def test_reproduce_never_overwrites_results_by_default(monkeypatch, tmp_path):
     assert Path("RESULTS.md").read_text() == "the committed results\n"
     (written,) = Path("results").glob("paper-*/RESULTS.md")
     assert "real_pendulum" in written.read_text()
+
+
+class _Payload:
+    """Stands for anything a pickle could build (and run) beyond tensors."""
+
+
+def test_a_checkpoint_that_is_more_than_weights_is_not_unpickled(capsys, monkeypatch, tmp_path):
+    import torch
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["fit", "--config", "spring_fast.yaml", "--trainer.max_steps=2"]
+    main([*argv, "--trainer.logger=false", "--trainer.default_root_dir", str(tmp_path / "h")])
+    (ckpt,) = (tmp_path / "h").rglob("last.ckpt")
+    payload = torch.load(ckpt, weights_only=True)
+    payload["extra"] = _Payload()
+    torch.save(payload, ckpt)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(["test", "--config", "spring_fast.yaml", "--ckpt_path", str(ckpt)])
+    assert info.value.code == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+    assert len(err) == 1 and "Weights only load failed" in err[0]
