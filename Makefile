@@ -25,8 +25,8 @@ test: $(STAMP)
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff format --check hnn_pl tests benchmarks
-	$(BIN)/ruff check hnn_pl tests benchmarks
+	$(BIN)/ruff format --check hnn_pl tests benchmarks examples
+	$(BIN)/ruff check hnn_pl tests benchmarks examples
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py

@@ -53,10 +53,11 @@ def sample_annulus(n: int, radius: tuple[float, float], generator: torch.Generat
 class HamiltonianSystem(ABC):
     """A conservative system ``dy/dt = J ∇H(y)`` with a known ``H``.
 
-    Subclasses set ``dof`` (degrees of freedom ``k``) and implement
-    :meth:`hamiltonian`, :meth:`vector_field` (analytic, not by autograd) and
-    :meth:`sample_initial`; they may override :meth:`energy` (the physical energy
-    the metrics compare, by default ``H``) and :meth:`exact_solution`.
+    Subclasses set ``dof`` (degrees of freedom ``k``) and implement :meth:`hamiltonian`
+    and :meth:`sample_initial`; that is a whole new system (the vector field then comes
+    from autograd of ``H``). They may override :meth:`vector_field` with a closed form
+    (faster), :meth:`energy` (the physical energy the metrics compare, by default ``H``)
+    and :meth:`exact_solution`. The data cache keys on the class's full import path.
     """
 
     dof: int = 1
@@ -73,9 +74,15 @@ class HamiltonianSystem(ABC):
     def hamiltonian(self, y: Tensor) -> Tensor:
         """``H(y)``: shape ``(..., 2k) -> (...)``."""
 
-    @abstractmethod
     def vector_field(self, t: Tensor | float | None, y: Tensor) -> Tensor:
-        """``dy/dt = J ∇H(y)`` in closed form: shape ``(..., 2k) -> (..., 2k)``."""
+        """``dy/dt = J ∇H(y)``, shape ``(..., 2k) -> (..., 2k)``: by autograd of
+        :meth:`hamiltonian` over the whole batch at once (``H`` of independent rows sums
+        to a scalar whose gradient is every row's ``∇H``), in ``y``'s dtype, under any
+        grad mode including inference mode. Subclasses may give the closed form."""
+        with torch.inference_mode(False), torch.enable_grad():
+            x = y.detach().clone().requires_grad_(True)
+            (grad,) = torch.autograd.grad(self.hamiltonian(x).sum(), x)
+        return symplectic_gradient(grad)
 
     def energy(self, y: Tensor) -> Tensor:
         """The physical energy used by the metrics, ``(..., 2k) -> (...)``. Default ``H``."""
