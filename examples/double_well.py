@@ -1,5 +1,4 @@
-"""A new system from H alone: a particle in a double well, H = p²/2 + (q² − 1)²/4."""
-
+# A new system from H alone: a particle in a double well, H = p²/2 + (q² − 1)²/4.
 import torch
 
 from hnn_pl.systems.base import HamiltonianSystem
