@@ -1,0 +1,50 @@
+"""Energy bump: H_θ changes by the requested amount, then stays there."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+from hnn_pl.bump import energy_bump
+from hnn_pl.models import HNN, AutoencoderHNN, Baseline
+
+
+@pytest.mark.parametrize("fraction", [0.1, -0.1])
+def test_the_bump_moves_h_by_delta_and_the_rollout_keeps_it(fraction):
+    """Bumps of a tenth of H_θ's spread over the starts (an untrained H_θ is bounded
+    and has critical points, where the gradient flow is singular)."""
+    torch.manual_seed(0)
+    model = HNN(input_dim=2, hidden_dim=32)
+    y0 = 0.5 * torch.randn(6, 2)
+    with torch.no_grad():
+        h0 = copy.deepcopy(model.field).double().hamiltonian(y0.double())
+    delta = fraction * float(h0.max() - h0.min())
+    z1, out = energy_bump(model, y0, delta, torch.linspace(0, 5, 51, dtype=torch.float64))
+    torch.testing.assert_close(out.h[0], h0 + delta, rtol=0, atol=1e-7)
+    assert (out.h - out.h[:1]).abs().max() < 1e-7
+    assert torch.equal(out.y[0], z1) and (z1 - y0.double()).abs().max() > 0
+
+
+def test_a_pixel_model_is_bumped_in_its_latent_space_and_decoded():
+    torch.manual_seed(0)
+    model = AutoencoderHNN(input_dim=1568)
+    x0 = torch.rand(3, 1568)
+    with torch.no_grad():
+        h0 = copy.deepcopy(model.field).double().hamiltonian(model.encode(x0).double())
+    _, out = energy_bump(model, x0, 0.01, torch.linspace(0, 1, 11, dtype=torch.float64))
+    torch.testing.assert_close(out.h[0], h0 + 0.01, rtol=0, atol=1e-7)
+    assert out.frames.shape == (11, 3, 1568) and torch.isfinite(out.frames).all()
+
+
+def test_a_model_without_h_cannot_be_bumped():
+    with pytest.raises(ValueError, match="only HNN"):
+        energy_bump(Baseline(input_dim=2), torch.zeros(1, 2), 0.1, torch.linspace(0, 1, 3))
+
+
+def test_a_bump_past_the_range_of_h_says_so():
+    torch.manual_seed(0)
+    model = HNN(input_dim=2, hidden_dim=32)
+    with pytest.raises(ValueError, match="critical point of H_θ"):
+        energy_bump(model, 0.5 * torch.randn(6, 2), 100.0, torch.linspace(0, 1, 3))
