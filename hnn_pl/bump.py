@@ -75,10 +75,10 @@ def energy_bump(
             )
             if not bool(sol.ok.all()):
                 rows = (~sol.ok).nonzero().flatten().tolist()
+                first = float(sol.t_stop[~sol.ok].min())
                 raise ValueError(
                     f"energy bump: rows {rows[:5]} meet a critical point of H_θ before it "
-                    f"changes by {delta:g} (first at ΔH_θ = {float(sol.t_stop[~sol.ok].min()):.3g}); "
-                    "use a smaller |delta|"
+                    f"changes by {delta:g} (first at ΔH_θ = {first:.3g}); use a smaller |delta|"
                 )
             z1 = sol.y[-1]
     if is_pixel_model(model):
