@@ -26,6 +26,7 @@ commands:
              ({prog} reproduce --help)
   stress     numerical stability of integrators and trained models, write
              STABILITY.md ({prog} stress --help)
+  bump       change a trained HNN's learned energy and roll out ({prog} bump --help)
 
 A --config that is not a file is looked up in the bundled configs (".yaml" optional).
 Classes go by their short names: {prog} fit --model HNN --data SimulatedData
@@ -60,6 +61,10 @@ def main(argv: list[str] | None = None) -> None:
             from hnn_pl.reproduce import main as reproduce
 
             sys.exit(reproduce(argv[1:]))
+        if argv[0] == "bump":
+            from hnn_pl.bump import main as bump
+
+            sys.exit(bump(argv[1:]))
         if argv[0] == "stress":
             from hnn_pl.stress import main as stress
 

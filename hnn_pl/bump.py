@@ -101,3 +101,87 @@ class _LatentModel(nn.Module):
     def decode(self, z: Tensor) -> Tensor:
         param = next(self.model.parameters())
         return self.model.decode(z.to(param.dtype))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hnn_pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
+    starts of a trained HNN and write ``bump.pt`` and ``bump.png`` beside the checkpoint."""
+    import argparse
+    from pathlib import Path
+
+    from hnn_pl.cli import _refuse_other_model_class, cli_main
+    from hnn_pl.config_paths import resolve_config
+
+    parser = argparse.ArgumentParser(prog="python -m hnn_pl bump", description=main.__doc__)
+    parser.add_argument("--config", required=True, help="the config the model was trained with")
+    parser.add_argument("--ckpt_path", required=True, help="a checkpoint of an HNN model")
+    parser.add_argument(
+        "--delta", type=float, default=None, help="ΔH_θ (default: 20 %% of its spread)"
+    )
+    parser.add_argument("--t_end", type=float, default=10.0, help="rollout horizon after the bump")
+    parser.add_argument("--n_points", type=int, default=200)
+    parser.add_argument("--starts", type=int, default=4, help="held-out starts to bump")
+    parser.add_argument("--out", type=Path, default=None, help="default: the checkpoint's run dir")
+    args = parser.parse_args(argv)
+    config = resolve_config(args.config)
+    cli = cli_main(["--config", config, "--trainer.logger=false"], run=False, save_config=False)
+    _refuse_other_model_class(args.ckpt_path, cli.config.get("model"))
+    state = torch.load(args.ckpt_path, weights_only=True, map_location="cpu")["state_dict"]
+    model, dm = cli.model, cli.datamodule
+    model.load_state_dict(state)
+    model.eval()
+    dm.setup("test")
+    if is_pixel_model(model):
+        starts = dm.rollout_truth(n_points=2)[2][0][: args.starts]
+    else:
+        starts = dm.rollout_target()[1][0][: args.starts]
+    t = torch.linspace(0, args.t_end, args.n_points, dtype=torch.float64)
+    _, before = energy_bump(model, starts, 0.0, t)
+    delta = args.delta
+    if delta is None:
+        delta = 0.2 * float(before.h[0].max() - before.h[0].min() + before.h[0].abs().mean())
+    _, after = energy_bump(model, starts, delta, t)
+    out = args.out or Path(args.ckpt_path).resolve().parent.parent
+    out.mkdir(parents=True, exist_ok=True)
+    torch.save(
+        {"delta": delta, "before": before.as_dict(), "after": after.as_dict()}, out / "bump.pt"
+    )
+    _figure(before, after, delta, out / "bump.png")
+    print(f"bumped H_θ by {delta:.4g}: wrote {out / 'bump.pt'} and {out / 'bump.png'}")
+    return 0
+
+
+def _figure(before: Trajectories, after: Trajectories, delta: float, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if before.frames is not None:
+        n = min(8, before.frames.shape[0])
+        idx = torch.linspace(0, before.frames.shape[0] - 1, n).long()
+        side = int(round((before.frames.shape[-1] // 2) ** 0.5))
+        fig, axes = plt.subplots(2, n, figsize=(1.4 * n, 3.2))
+        for row, (traj, label) in enumerate(((before, "original"), (after, f"ΔH_θ = {delta:.3g}"))):
+            for col, k in enumerate(idx.tolist()):
+                frame = traj.frames[k, 0, : side * side].reshape(side, side).float()
+                axes[row, col].imshow(frame.detach().numpy(), cmap="gray")
+                axes[row, col].axis("off")
+            axes[row, 0].set_title(label, fontsize=8, loc="left")
+    else:
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+        for traj, style, label in (
+            (before, "-", "original"),
+            (after, "--", f"bumped by {delta:.3g}"),
+        ):
+            k = traj.y.shape[-1] // 2
+            for b in range(traj.y.shape[1]):
+                ax1.plot(traj.y[:, b, 0], traj.y[:, b, k], style, label=label if b == 0 else None)
+                ax2.plot(traj.t, traj.h[:, b], style, label=label if b == 0 else None)
+        ax1.set(xlabel="q", ylabel="p", title="learned dynamics before and after the bump")
+        ax2.set(xlabel="t", ylabel="H_θ", title="H_θ: moved by ΔH, then kept")
+        ax1.legend()
+        ax2.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -48,3 +48,26 @@ def test_a_bump_past_the_range_of_h_says_so():
     model = HNN(input_dim=2, hidden_dim=32)
     with pytest.raises(ValueError, match="critical point of H_θ"):
         energy_bump(model, 0.5 * torch.randn(6, 2), 100.0, torch.linspace(0, 1, 3))
+
+
+def test_the_bump_command_writes_the_rollouts_and_a_figure(tmp_path, monkeypatch):
+    from hnn_pl.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    fit = [
+        "fit",
+        "--config",
+        "spring_fast.yaml",
+        "--trainer.max_steps=30",
+        "--trainer.logger=false",
+    ]
+    main([*fit, "--trainer.default_root_dir", str(tmp_path / "run")])
+    (ckpt,) = (tmp_path / "run").rglob("last.ckpt")
+    argv = ["bump", "--config", "spring_fast.yaml", "--ckpt_path", str(ckpt), "--out", "b"]
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--t_end", "2", "--n_points", "21"])
+    assert info.value.code == 0
+    saved = torch.load(tmp_path / "b" / "bump.pt", weights_only=True)
+    moved = saved["after"]["h"][0] - saved["before"]["h"][0]
+    torch.testing.assert_close(moved, torch.full_like(moved, saved["delta"]), rtol=0, atol=1e-7)
+    assert (tmp_path / "b" / "bump.png").stat().st_size > 10_000
