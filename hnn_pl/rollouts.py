@@ -36,7 +36,8 @@ class Rollout:
     ``z_true``/``z_pred (T, B, L)`` encoded and integrated latents, ``x_true``/``x_pred
     (T, B, 1568)`` frame pairs, ``probe (L + 1, 2)`` with ``(q, p) ≈ [z, 1] @ probe``
     and its training residual ``probe_mse``. ``status (B,)``: each row's
-    :class:`hnn_pl.integrate.Status` (rows that diverged are NaN after their stop)."""
+    :class:`hnn_pl.integrate.Status` (rows that diverged are NaN after their stop).
+    ``floors``: the true system's own errors under the protocol (:func:`error_floors`)."""
 
     t: Tensor
     y_true: Tensor
@@ -52,6 +53,7 @@ class Rollout:
     probe: Tensor | None = None
     probe_mse: Tensor | float = 0.0
     status: Tensor | None = None
+    floors: dict[str, Tensor] | None = None
 
     @property
     def is_pixel(self) -> bool:
@@ -63,7 +65,8 @@ class Rollout:
         per_row += ("z_true", "z_pred", "x_true", "x_pred")
         picked = {k: getattr(self, k)[:, keep] for k in per_row if getattr(self, k) is not None}
         status = None if self.status is None else self.status[keep]
-        return replace(self, **picked, status=status)
+        floors = None if self.floors is None else {k: v[keep] for k, v in self.floors.items()}
+        return replace(self, **picked, status=status, floors=floors)
 
 
 def _dtype(protocol_dtype: str | torch.dtype | None) -> torch.dtype | None:
@@ -215,7 +218,40 @@ def _run_state(model: Any, dm: Any, p: Protocol) -> Rollout:
     r.h_pred = _learned_h(field, y_pred)
     if r.h_pred is not None:
         r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
+    r.floors = error_floors(dm, r.t, y_true, p)
     return r
+
+
+#: size of the start perturbation that measures the chaos floor
+CHAOS_EPS = 1e-4
+
+
+def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Protocol) -> dict[str, Tensor]:
+    """How much of a rollout's error is not the model's, per trajectory ``(B,)``:
+
+    - ``integrator``: the true system (``dm.system``) through the protocol's own method,
+      step and tolerances, against the truth;
+    - ``chaos``: the true system at truth accuracy from starts perturbed by
+      ``CHAOS_EPS · N(0, 1)`` (a fixed draw), against the truth: the error any model
+      inherits from sensitivity to its start.
+
+    Each as energy MSE and state MSE over time (``{name}_energy``, ``{name}_state``).
+    Empty without ``dm.system``.
+    """
+    system = getattr(dm, "system", None)
+    if system is None:
+        return {}
+    y0, tt = y_true[0].double(), t.double()
+    kw = {k: v for k, v in p.solver_kwargs().items() if k != "method"}
+    integ = odeint(system.vector_field, y0, tt, p.method, return_status=True, **kw).y
+    gen = torch.Generator().manual_seed(0)
+    noise = torch.randn(y0.shape, generator=gen, dtype=torch.float64).to(y0.device)
+    chaos = system.trajectory(y0 + CHAOS_EPS * noise, tt)
+    e_true, out = dm.energy(y_true.double()), {}
+    for name, y in (("integrator", integ), ("chaos", chaos)):
+        out[f"{name}_energy"] = ((dm.energy(y) - e_true) ** 2).mean(0)
+        out[f"{name}_state"] = ((y - y_true.double()) ** 2).mean((0, 2))
+    return out
 
 
 def fit_probe(z: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
@@ -296,15 +332,39 @@ def motion_error(y_pred: Tensor, y_true: Tensor, fraction: float = 0.1) -> Tenso
     return ((y_pred[:k] - y_true[:k]) ** 2).sum() / moved.clamp_min(torch.finfo(moved.dtype).tiny)
 
 
+def valid_time(r: Rollout, threshold: float = 0.025) -> Tensor:
+    """Valid prediction time per trajectory, ``(B,)``: the first ``t − t₀`` at which the
+    normalised state error ``‖y_pred − y_true‖ / rms_t ‖y_true‖`` exceeds ``threshold``
+    (the whole horizon if it never does)."""
+    scale = (r.y_true**2).sum(-1).mean(0).sqrt()
+    err = (r.y_pred - r.y_true).norm(dim=-1) / scale.clamp_min(torch.finfo(scale.dtype).tiny)
+    over = err > threshold
+    first = torch.where(over.any(0), over.to(torch.uint8).argmax(0), len(r.t) - 1)
+    return r.t[first] - r.t[0]
+
+
+def energy_drift_slope(r: Rollout) -> Tensor:
+    """Least-squares slope in time of ``mean_b (E_pred(t) − E_pred(0)) / |E_true(0)|``:
+    the predicted energy's relative drift per unit time (signed)."""
+    rel = ((r.e_pred - r.e_pred[:1]) / r.e_true[:1].abs().clamp_min(1e-12)).mean(1)
+    tc = r.t - r.t.mean()
+    return (tc * (rel - rel.mean())).sum() / (tc * tc).sum()
+
+
 def score(r: Rollout) -> dict[str, float]:
     """Every metric of a rollout, unprefixed, over the rows that did not diverge.
 
     - ``energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²``;
     - ``state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
     - ``motion_error``: see :func:`motion_error`;
+    - ``valid_time``: mean over trajectories of :func:`valid_time` (threshold 0.025);
+    - ``energy_drift_slope``: see :func:`energy_drift_slope`;
     - ``conserved_drift`` (HNN): see :func:`conserved_drift`;
     - ``diverged_rows``: how many rows stopped early (the others are scored; all NaN
       if none is left);
+    - state tasks: ``floor_integrator_energy_mse``, ``floor_chaos_energy_mse`` and
+      their ``_state_mse`` twins (:func:`error_floors`): the part of an error that is
+      not the model's;
     - pixel models also ``pixel_mse`` (decoded vs true frame pairs), ``latent_mse``
       (integrated vs encoded true pairs) and ``probe_mse``.
     """
@@ -312,18 +372,22 @@ def score(r: Rollout) -> dict[str, float]:
     if diverged:
         r = r.rows(r.status == 0)
     if r.y_true.shape[1] == 0:
-        names = ["energy_mse", "state_mse", "motion_error"] + ["conserved_drift"] * (
-            r.h_pred is not None
-        )
+        names = ["energy_mse", "state_mse", "motion_error", "valid_time", "energy_drift_slope"]
+        names += ["conserved_drift"] * (r.h_pred is not None)
         return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged)}
     out = {
         "energy_mse": energy_mse_per_trajectory(r).mean(),
         "state_mse": ((r.y_true - r.y_pred) ** 2).mean(),
         "motion_error": motion_error(r.y_pred, r.y_true),
+        "valid_time": valid_time(r).mean(),
+        "energy_drift_slope": energy_drift_slope(r),
         "diverged_rows": diverged,
     }
     if r.h_pred is not None:
         out["conserved_drift"] = conserved_drift(r)
+    for key, value in (r.floors or {}).items():
+        name, kind = key.rsplit("_", 1)
+        out[f"floor_{name}_{kind}_mse"] = value.mean()
     if r.is_pixel:
         out["pixel_mse"] = ((r.x_pred - r.x_true) ** 2).mean()
         out["latent_mse"] = ((r.z_pred - r.z_true) ** 2).mean()
