@@ -15,6 +15,7 @@ _LAZY = {
     "METHODS": "hnn_pl.integrate",
     "HNN": "hnn_pl.models",
     "Baseline": "hnn_pl.models",
+    "DissipativeHNN": "hnn_pl.models",
     "DynamicsModel": "hnn_pl.models",
     "SimulatedData": "hnn_pl.data",
     "TrajectoryDataModule": "hnn_pl.data",

@@ -343,10 +343,12 @@ def valid_time(r: Rollout, threshold: float = 0.025) -> Tensor:
     return r.t[first] - r.t[0]
 
 
-def energy_drift_slope(r: Rollout) -> Tensor:
-    """Least-squares slope in time of ``mean_b (E_pred(t) − E_pred(0)) / |E_true(0)|``:
-    the predicted energy's relative drift per unit time (signed)."""
-    rel = ((r.e_pred - r.e_pred[:1]) / r.e_true[:1].abs().clamp_min(1e-12)).mean(1)
+def energy_drift_slope(r: Rollout, energy: Tensor | None = None) -> Tensor:
+    """Least-squares slope in time of ``mean_b (E(t) − E(0)) / |E_true(0)|``, ``E`` the
+    predicted energy ``r.e_pred (T, B)`` unless given: the relative drift per unit time
+    (signed; with ``energy=r.e_true`` the truth's own, e.g. a measured decay)."""
+    e = r.e_pred if energy is None else energy
+    rel = ((e - e[:1]) / r.e_true[:1].abs().clamp_min(1e-12)).mean(1)
     tc = r.t - r.t.mean()
     return (tc * (rel - rel.mean())).sum() / (tc * tc).sum()
 
@@ -358,7 +360,8 @@ def score(r: Rollout) -> dict[str, float]:
     - ``state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
     - ``motion_error``: see :func:`motion_error`;
     - ``valid_time``: mean over trajectories of :func:`valid_time` (threshold 0.025);
-    - ``energy_drift_slope``: see :func:`energy_drift_slope`;
+    - ``energy_drift_slope``: see :func:`energy_drift_slope`; ``true_energy_drift_slope``
+      the truth's (0 for a conservative system, negative for measured friction);
     - ``conserved_drift`` (HNN): see :func:`conserved_drift`;
     - ``diverged_rows``: how many rows stopped early (the others are scored; all NaN
       if none is left);
@@ -373,6 +376,7 @@ def score(r: Rollout) -> dict[str, float]:
         r = r.rows(r.status == 0)
     if r.y_true.shape[1] == 0:
         names = ["energy_mse", "state_mse", "motion_error", "valid_time", "energy_drift_slope"]
+        names += ["true_energy_drift_slope"]
         names += ["conserved_drift"] * (r.h_pred is not None)
         return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged)}
     out = {
@@ -381,6 +385,7 @@ def score(r: Rollout) -> dict[str, float]:
         "motion_error": motion_error(r.y_pred, r.y_true),
         "valid_time": valid_time(r).mean(),
         "energy_drift_slope": energy_drift_slope(r),
+        "true_energy_drift_slope": energy_drift_slope(r, r.e_true),
         "diverged_rows": diverged,
     }
     if r.h_pred is not None:

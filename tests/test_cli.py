@@ -109,6 +109,7 @@ def test_short_class_names_fit(tmp_path):
     [
         (["--model.help", "HNN"], "--model.hidden_dim"),
         (["--model.help", "Baseline"], "--model.hidden_dim"),
+        (["--model.help", "DissipativeHNN"], "--model.momentum_only"),
         (["--data.help", "SimulatedData"], "--data.n_trajectories"),
         (["--data", "SimulatedData", "--data.system.help", "TwoBody"], "orbit_noise"),
     ],

@@ -25,13 +25,19 @@ PACKAGE = Path(hnn_pl.__file__).parent
 def test_every_task_names_its_configs_and_published_numbers_once():
     configs = set(bundled_configs())
     for task in tasks.TASKS.values():
-        for model in tasks.MODELS:
-            assert task.config(model) in configs
+        for model in task.models:
+            for recipe in tasks.RECIPES:
+                assert task.config(model, recipe) in configs
+        for model in ("baseline", "hnn"):
             assert task.published[model].energy_mse > 0
         assert isinstance(task.clean, Protocol)
         want = Protocol if task.kind == "pixel" else ReferenceProtocol
         assert isinstance(task.reference, want)
     assert tasks.get("spring").config("baseline", "fast") == "spring_fast_baseline.yaml"
+    real = tasks.get("real_pendulum").config("dissipative", "fast")
+    assert real == "real_pendulum_fast_dissipative.yaml"
+    with pytest.raises(ValueError, match="model must be in"):
+        tasks.get("spring").config("dissipative")
     with pytest.raises(KeyError, match="known tasks"):
         tasks.get("spring_mass")
 

@@ -7,7 +7,8 @@ from hnn_pl.models.autoencoder_hnn import (
 )
 from hnn_pl.models.base import DynamicsModel
 from hnn_pl.models.baseline import Baseline
+from hnn_pl.models.dissipative_hnn import DissipativeHNN
 from hnn_pl.models.hnn import HNN
 
-__all__ = ["DynamicsModel", "Baseline", "HNN"]
+__all__ = ["DynamicsModel", "Baseline", "HNN", "DissipativeHNN"]
 __all__ += ["AutoencoderDynamicsModel", "AutoencoderHNN", "AutoencoderBaseline"]

@@ -23,6 +23,26 @@ class DirectField(nn.Module):
         return self.net(y)
 
 
+def scalar_value_and_grad(
+    net: nn.Module, y: Tensor, closed_form: bool = True
+) -> tuple[Tensor, Tensor]:
+    """A scalar network's value ``s(y) (batch,)`` (its first output) and ``∇s(y) (batch, 2k)``.
+
+    Closed-form for the tanh :class:`~hnn_pl.nets.MLP` when ``closed_form``; otherwise
+    ``torch.autograd.grad``, with ``create_graph`` only when the caller records
+    gradients (training). Works under ``torch.no_grad`` and ``torch.inference_mode``.
+    """
+    if closed_form and getattr(net, "activation", None) == "tanh":
+        return net.value_and_input_grad(y)
+    record = torch.is_grad_enabled() and not torch.is_inference_mode_enabled()
+    with torch.inference_mode(False), torch.enable_grad():
+        if not y.requires_grad:
+            y = y.clone().requires_grad_(True)
+        s = net(y)[..., 0]
+        (grad,) = torch.autograd.grad(s.sum(), y, create_graph=record)
+    return (s, grad) if record else (s.detach(), grad.detach())
+
+
 class HamiltonianField(nn.Module):
     """An HNN: a scalar ``H_θ(y)`` and its symplectic gradient ``dy/dt = J∇H_θ``.
 
@@ -48,15 +68,7 @@ class HamiltonianField(nn.Module):
 
     def value_and_grad(self, y: Tensor) -> tuple[Tensor, Tensor]:
         """``H_θ(y) (batch,)`` and ``∇H_θ(y) (batch, 2k)``."""
-        if self.closed_form and getattr(self.net, "activation", None) == "tanh":
-            return self.net.value_and_input_grad(y)
-        record = torch.is_grad_enabled() and not torch.is_inference_mode_enabled()
-        with torch.inference_mode(False), torch.enable_grad():
-            if not y.requires_grad:
-                y = y.clone().requires_grad_(True)
-            h = self.net(y)[..., 0]
-            (grad,) = torch.autograd.grad(h.sum(), y, create_graph=record)
-        return (h, grad) if record else (h.detach(), grad.detach())
+        return scalar_value_and_grad(self.net, y, self.closed_form)
 
     def forward(self, y: Tensor) -> Tensor:
         return symplectic_gradient(self.value_and_grad(y)[1])
@@ -64,3 +76,60 @@ class HamiltonianField(nn.Module):
     def vector_field(self, t: Tensor | float | None, y: Tensor) -> Tensor:
         """``f(t, y) = J∇H_θ(y) = (∂H/∂p, −∂H/∂q)``, ``(batch, 2k) -> (batch, 2k)``."""
         return symplectic_gradient(self.value_and_grad(y)[1])
+
+
+class DissipativeField(nn.Module):
+    """A dissipative HNN (Sosanya & Greydanus 2022): ``dy/dt = J∇H_θ(y) + M∇D_φ(y)``.
+
+    Two scalar networks: ``H_θ`` (the conservative part, as in an HNN) and ``D_φ`` (a
+    dissipation potential, Helmholtz's irrotational part). ``M`` is the identity
+    (``momentum_only=False``: the paper's Helmholtz form) or the projection on the
+    momenta (``True``: Rayleigh's form, friction forces ``dp/dt ∋ ∂D_φ/∂p`` and
+    ``dq/dt = ∂H_θ/∂p`` untouched). Along the field ``dH_θ/dt = ∇H_θ · M∇D_φ``: zero
+    only where the learned dissipation vanishes, so ``H_θ`` decays on data with friction.
+
+    Args:
+        h_net, d_net: each maps ``(batch, 2k)`` to ``(batch, 1)``.
+        momentum_only: Rayleigh's form (``True``) or the full gradient.
+        closed_form: use the networks' closed-form gradients where they have one.
+    """
+
+    def __init__(
+        self,
+        h_net: nn.Module,
+        d_net: nn.Module,
+        momentum_only: bool = True,
+        closed_form: bool = True,
+    ) -> None:
+        super().__init__()
+        self.net = h_net
+        self.d_net = d_net
+        self.momentum_only = momentum_only
+        self.closed_form = closed_form
+
+    def hamiltonian(self, y: Tensor) -> Tensor:
+        """``H_θ(y)``: ``(batch, 2k) -> (batch,)``."""
+        return self.net(y)[..., 0]
+
+    def dissipation(self, y: Tensor) -> Tensor:
+        """``D_φ(y)``: ``(batch, 2k) -> (batch,)``."""
+        return self.d_net(y)[..., 0]
+
+    def value_and_grad(self, y: Tensor) -> tuple[Tensor, Tensor]:
+        """``H_θ(y) (batch,)`` and ``∇H_θ(y) (batch, 2k)`` (for the energy bump)."""
+        return scalar_value_and_grad(self.net, y, self.closed_form)
+
+    def dissipative_part(self, y: Tensor) -> Tensor:
+        """``M∇D_φ(y)``: ``(batch, 2k) -> (batch, 2k)``."""
+        grad = scalar_value_and_grad(self.d_net, y, self.closed_form)[1]
+        if self.momentum_only:
+            k = grad.shape[-1] // 2
+            grad = torch.cat([torch.zeros_like(grad[..., :k]), grad[..., k:]], dim=-1)
+        return grad
+
+    def forward(self, y: Tensor) -> Tensor:
+        return self.vector_field(None, y)
+
+    def vector_field(self, t: Tensor | float | None, y: Tensor) -> Tensor:
+        """``f(t, y) = J∇H_θ(y) + M∇D_φ(y)``, ``(batch, 2k) -> (batch, 2k)``."""
+        return symplectic_gradient(self.value_and_grad(y)[1]) + self.dissipative_part(y)
