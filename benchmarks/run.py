@@ -7,6 +7,7 @@ runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``
 import data
 import integrators
 import startup
+import symplectic
 import threads
 import training
 import tta
@@ -20,5 +21,6 @@ if __name__ == "__main__":
         "startup": startup,
         "tta": tta,
         "threads": threads,
+        "symplectic": symplectic,
     }
     main(topics, REPORT)

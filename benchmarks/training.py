@@ -18,7 +18,8 @@ from common import main, measure, ms, table
 from hnn_pl.nets import MLP, DirectField, HamiltonianField
 
 TITLE = "Training step"
-SHAPES = ((750, 2, "spring, full batch"), (200, 8, "two-body batch"), (600, 12, "three-body"))
+SHAPES = ((750, 2, "spring, full batch"), (445, 2, "real pendulum, full batch"))
+SHAPES += ((200, 8, "two-body batch"), (600, 12, "three-body batch"))
 KINDS = ("HNN closed-form", "HNN autograd", "baseline")
 
 

@@ -16,6 +16,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SECTIONS = ("machine", "integrators", "training", "data", "startup", "tta", "threads")
+SECTIONS += ("symplectic",)
 SEEDED = """# hnn_pl benchmarks
 
 Hand-written introduction.
@@ -102,4 +103,6 @@ def test_other_tables(report):
     for needle in ("one solve_ivp per start", "HNN autograd (ms)", "in Trainer.fit (ms)"):
         assert any(needle in h for h in headers), needle
     for needle in ("cache hit (ms)", "command time (s)", "seeds reached", "busy / idle"):
+        assert any(needle in h for h in headers), needle
+    for needle in ("learned-H drift", "beating every dopri5 setting"):
         assert any(needle in h for h in headers), needle

@@ -172,3 +172,25 @@ def test_predict_writes_rollouts_beside_the_run_and_says_where(run, capsys):
     )
     given = torch.load(ckpt.parent.parent / "given.pt", weights_only=True)
     assert given["y"].shape == (200, 3, 2) and given["energy"].shape == (200, 3)
+
+
+def test_predict_with_the_implicit_midpoint_rule(run):
+    """``predict`` integrates with a symplectic method on request: the same paths as
+    dopri5 to the rule's O(h²) error, ``H_θ`` kept along them."""
+    config, tmp_path, cli = run
+    ckpt = Path(cli.trainer.checkpoint_callback.last_model_path)
+    midpoint = '{"method": "implicit_midpoint", "step_size": 0.02}'
+    cli_main(
+        ["predict", "--config", config, f"--ckpt_path={ckpt}", *_common(tmp_path)]
+        + ["--trainer.callbacks+=hnn_pl.callbacks.RolloutWriter"]
+        + ["--trainer.callbacks.init_args.filename=midpoint.pt"]
+        + [f"--trainer.callbacks.init_args.overrides={midpoint}"]
+    )
+    mid = torch.load(ckpt.parent.parent / "midpoint.pt", weights_only=True)
+    assert mid["metrics"]["diverged_rows"] == 0
+    model = type(cli.model).load_from_checkpoint(ckpt)
+    ref = hnn_pl.rollout(model, mid["y_true"][0], mid["t"], method="dopri5", rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(mid["y_pred"], ref.y, rtol=0, atol=1e-3)
+    if "h_pred" in mid:
+        h = mid["h_pred"]
+        assert (h - h[:1]).abs().max() / h.std() < 1e-3
