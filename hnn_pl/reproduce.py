@@ -201,13 +201,14 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
-        pub = tasks.get(row["task"]).published.get(row["model"], [math.nan] * 3 + [None])
+        pub = tasks.get(row["task"]).published.get(row["model"])
+        paper = ["—"] * 3 if pub is None else [_fmt(pub[0]), _fmt(pub[1]), _fmt(pub[2], pub[3])]
         fail = f" ({row['failed']} failed)" if row["failed"] else ""
         lines.append(
             f"| {row['task']} | {row['model']} | {row['seeds']}{fail} "
-            f"| {_fmt(*row['train_loss'])} / {_fmt(pub[0])} "
-            f"| {_fmt(*row['test_loss'])} / {_fmt(pub[1])} "
-            f"| {_fmt(*row['ref_energy'])} / {_fmt(pub[2], pub[3])} "
+            f"| {_fmt(*row['train_loss'])} / {paper[0]} "
+            f"| {_fmt(*row['test_loss'])} / {paper[1]} "
+            f"| {_fmt(*row['ref_energy'])} / {paper[2]} "
             f"| {_fmt(*row['clean_energy'])} | {_fmt(*row['clean_drift'])} "
             f"| {row['train_s'][0]:.1f} | {row['eval_s'][0]:.1f} | {row['tta']} |"
         )

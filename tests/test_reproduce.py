@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 
+import pytest
+
 from hnn_pl import reproduce
 
 
@@ -113,3 +115,22 @@ def test_fast_recipe_records_time_to_accuracy(tmp_path, monkeypatch):
     assert "recipe `fast`" in md and "time to accuracy" in md
     row = next(line for line in md.splitlines() if line.startswith("| spring | hnn |"))
     assert row.rstrip("|").split("|")[-1].strip().endswith("/2") or "not reached (0/2)" in row
+
+
+def test_the_dissipative_model_runs_only_where_a_task_has_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    common = ["--seeds", "1", "--workers", "0", "--max-steps", "2", "--out", "R.md"]
+    argv = ["--tasks", "spring", "real_pendulum", "--models", "hnn", "dissipative", *common]
+    assert reproduce.main(argv) == 0
+    runs = json.loads((tmp_path / "R.json").read_text())["runs"]
+    assert sorted((r["task"], r["model"]) for r in runs) == [
+        ("real_pendulum", "dissipative"),
+        ("real_pendulum", "hnn"),
+        ("spring", "hnn"),
+    ]
+    md = (tmp_path / "R.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| real_pendulum | dissip"))
+    assert row.count("/ —") == 3, row  # no published numbers for this model
+    assert "**real_pendulum.**" in md
+    with pytest.raises(SystemExit):
+        reproduce.main(["--tasks", "spring", "--models", "dissipative", *common])
