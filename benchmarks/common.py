@@ -110,3 +110,17 @@ def main(topics: dict, default_out: Path | None) -> None:
         if args.out:
             write_section(args.out, name, topics[name].TITLE, body)
         print(f"## {topics[name].TITLE}\n\n{body}\n", flush=True)
+
+
+def quiet_cli(config: str, seed: int, threads: int = 1, max_steps: int | None = None):
+    """A bundled config as ``fit`` runs it, minus logger, checkpoints, progress bar,
+    callbacks and validation, built but not run: ``cli.trainer.fit(cli.model,
+    cli.datamodule)`` trains it."""
+    from hnn_pl.cli import cli_main
+
+    args = [f"--config={config}", f"--seed_everything={seed}", f"--threads={threads}"]
+    args += ["--trainer.logger=false", "--trainer.enable_checkpointing=false"]
+    args += ["--trainer.enable_progress_bar=false", "--trainer.enable_model_summary=false"]
+    args += ["--trainer.callbacks=[]", "--trainer.limit_val_batches=0"]
+    args += [f"--trainer.max_steps={max_steps}"] if max_steps else []
+    return cli_main(args, run=False, save_config=False)

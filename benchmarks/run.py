@@ -5,6 +5,7 @@ runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``
 """
 
 import data
+import independent
 import integrators
 import startup
 import symplectic
@@ -22,5 +23,6 @@ if __name__ == "__main__":
         "tta": tta,
         "threads": threads,
         "symplectic": symplectic,
+        "independent": independent,
     }
     main(topics, REPORT)

@@ -15,10 +15,9 @@ from __future__ import annotations
 import sys
 
 import torch
-from common import main, measure, table
+from common import main, measure, quiet_cli, table
 
 from hnn_pl import rollout, tasks
-from hnn_pl.cli import cli_main
 
 TITLE = "Implicit midpoint against dopri5 on learned fields"
 TASKS = ("spring", "pendulum", "two_body", "three_body")
@@ -32,12 +31,7 @@ MARGIN = 0.9
 
 
 def trained(task: str, quick: bool):
-    args = [f"--config={tasks.get(task).config('hnn', 'fast')}", "--seed_everything=0"]
-    args += ["--trainer.logger=false", "--trainer.enable_checkpointing=false"]
-    args += ["--trainer.enable_progress_bar=false", "--trainer.callbacks=[]"]
-    args += ["--trainer.limit_val_batches=0", "--threads=1"]
-    args += ["--trainer.max_steps=20"] if quick else []
-    cli = cli_main(args, run=False, save_config=False)
+    cli = quiet_cli(tasks.get(task).config("hnn", "fast"), 0, 1, 20 if quick else None)
     cli.trainer.fit(cli.model, cli.datamodule)
     return cli.model, cli.datamodule
 

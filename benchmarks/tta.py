@@ -15,11 +15,10 @@ import sys
 import time
 
 import torch
-from common import main, table
+from common import main, quiet_cli, table
 
 from hnn_pl import tasks
 from hnn_pl.callbacks import TimeToAccuracy
-from hnn_pl.cli import cli_main
 
 TITLE = "Time to accuracy"
 STATE_TASKS = ("spring", "pendulum", "real_pendulum", "two_body", "three_body")
@@ -29,21 +28,7 @@ REFERENCE_S = {"spring": 38.5, "pendulum": 39.1, "two_body": 55.8, "real_pendulu
 
 def fit_until(task: str, recipe: str, seed: int, threads: int, max_steps=None) -> dict:
     """One HNN fit with a stopping :class:`TimeToAccuracy`: its ``reached`` and timings."""
-    config = tasks.get(task).config("hnn", recipe)
-    args = [
-        f"--config={config}",
-        f"--seed_everything={seed}",
-        f"--threads={threads}",
-        "--trainer.logger=false",
-        "--trainer.enable_checkpointing=false",
-        "--trainer.enable_progress_bar=false",
-        "--trainer.enable_model_summary=false",
-        "--trainer.callbacks=[]",
-        "--trainer.limit_val_batches=0",
-    ]
-    if max_steps:
-        args.append(f"--trainer.max_steps={max_steps}")
-    cli = cli_main(args, run=False, save_config=False)
+    cli = quiet_cli(tasks.get(task).config("hnn", recipe), seed, threads, max_steps)
     tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every[recipe], stop=True)
     cli.trainer.callbacks.append(tta)
     cli.datamodule.prepare_data()
