@@ -78,15 +78,16 @@ class HamiltonianField(nn.Module):
         return symplectic_gradient(self.value_and_grad(y)[1])
 
 
-class DissipativeField(nn.Module):
+class DissipativeField(HamiltonianField):
     """A dissipative HNN (Sosanya & Greydanus 2022): ``dy/dt = J∇H_θ(y) + M∇D_φ(y)``.
 
-    Two scalar networks: ``H_θ`` (the conservative part, as in an HNN) and ``D_φ`` (a
-    dissipation potential, Helmholtz's irrotational part). ``M`` is the identity
-    (``momentum_only=False``: the paper's Helmholtz form) or the projection on the
-    momenta (``True``: Rayleigh's form, friction forces ``dp/dt ∋ ∂D_φ/∂p`` and
-    ``dq/dt = ∂H_θ/∂p`` untouched). Along the field ``dH_θ/dt = ∇H_θ · M∇D_φ``: zero
-    only where the learned dissipation vanishes, so ``H_θ`` decays on data with friction.
+    An HNN's ``H_θ`` (:class:`HamiltonianField`: ``hamiltonian``, ``value_and_grad``)
+    plus a second scalar network ``D_φ``, a dissipation potential (Helmholtz's
+    irrotational part). ``M`` is the identity (``momentum_only=False``: the paper's
+    Helmholtz form) or the projection on the momenta (``True``: Rayleigh's form,
+    friction forces ``dp/dt ∋ ∂D_φ/∂p`` and ``dq/dt = ∂H_θ/∂p`` untouched). Along the
+    field ``dH_θ/dt = ∇H_θ · M∇D_φ``: zero only where the learned dissipation vanishes,
+    so ``H_θ`` decays on data with friction.
 
     Args:
         h_net, d_net: each maps ``(batch, 2k)`` to ``(batch, 1)``.
@@ -101,23 +102,13 @@ class DissipativeField(nn.Module):
         momentum_only: bool = True,
         closed_form: bool = True,
     ) -> None:
-        super().__init__()
-        self.net = h_net
+        super().__init__(h_net, closed_form)
         self.d_net = d_net
         self.momentum_only = momentum_only
-        self.closed_form = closed_form
-
-    def hamiltonian(self, y: Tensor) -> Tensor:
-        """``H_θ(y)``: ``(batch, 2k) -> (batch,)``."""
-        return self.net(y)[..., 0]
 
     def dissipation(self, y: Tensor) -> Tensor:
         """``D_φ(y)``: ``(batch, 2k) -> (batch,)``."""
         return self.d_net(y)[..., 0]
-
-    def value_and_grad(self, y: Tensor) -> tuple[Tensor, Tensor]:
-        """``H_θ(y) (batch,)`` and ``∇H_θ(y) (batch, 2k)`` (for the energy bump)."""
-        return scalar_value_and_grad(self.net, y, self.closed_form)
 
     def dissipative_part(self, y: Tensor) -> Tensor:
         """``M∇D_φ(y)``: ``(batch, 2k) -> (batch, 2k)``."""
@@ -132,4 +123,4 @@ class DissipativeField(nn.Module):
 
     def vector_field(self, t: Tensor | float | None, y: Tensor) -> Tensor:
         """``f(t, y) = J∇H_θ(y) + M∇D_φ(y)``, ``(batch, 2k) -> (batch, 2k)``."""
-        return symplectic_gradient(self.value_and_grad(y)[1]) + self.dissipative_part(y)
+        return super().vector_field(t, y) + self.dissipative_part(y)
