@@ -18,27 +18,12 @@ class DissipativeHNN(DynamicsModel):
 
     Args:
         momentum_only: Rayleigh's form (default) or the full ``∇D_φ``.
-        Other arguments as :class:`~hnn_pl.models.base.DynamicsModel`.
+        **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
     """
 
-    def __init__(
-        self,
-        input_dim: int = 2,
-        hidden_dim: int = 200,
-        n_hidden: int = 2,
-        activation: str = "tanh",
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        optimizer: str = "adam",
-        schedule: str = "constant",
-        warmup_steps: int = 0,
-        inner_steps: int = 1,
-        grad_clip: float | None = None,
-        on_nonfinite: str = "stop",
-        momentum_only: bool = True,
-    ) -> None:
-        recipe = (lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip)
-        super().__init__(input_dim, hidden_dim, n_hidden, activation, *recipe, on_nonfinite)
+    def __init__(self, momentum_only: bool = True, **kwargs) -> None:
+        self.momentum_only = momentum_only
+        super().__init__(**kwargs)
 
     def build_field(
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
@@ -46,7 +31,7 @@ class DissipativeHNN(DynamicsModel):
         return DissipativeField(
             MLP(input_dim, 1, hidden_dim, n_hidden, activation),
             MLP(input_dim, 1, hidden_dim, n_hidden, activation),
-            momentum_only=self.hparams.get("momentum_only", True),
+            momentum_only=self.momentum_only,
         )
 
     def hamiltonian(self, y: Tensor) -> Tensor:
