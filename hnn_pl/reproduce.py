@@ -28,8 +28,6 @@ from pathlib import Path
 
 from hnn_pl import tasks
 
-MODELS = tasks.MODELS
-
 
 def _job_args(
     task: str, model: str, seed: int, max_steps: int | None, recipe: str = "paper"
@@ -315,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
         "--models",
         nargs="+",
         default=["baseline", "hnn"],
-        choices=list(MODELS),
+        choices=list(tasks.MODELS),
         help="default: baseline hnn; dissipative runs where a task has it (real_pendulum)",
     )
     parser.add_argument(

@@ -87,16 +87,27 @@ def test_a_bad_config_file_is_named(content, expected, capsys, monkeypatch, tmp_
     assert f"config {config}" in line and expected in line
 
 
-def test_a_checkpoint_of_another_model_class_is_refused(capsys, monkeypatch, tmp_path):
-    monkeypatch.chdir(tmp_path)
-    argv = ["fit", "--config", "spring_fast_baseline.yaml", "--trainer.max_steps=2"]
-    main([*argv, "--trainer.logger=false", "--trainer.default_root_dir", str(tmp_path / "b")])
-    (ckpt,) = (tmp_path / "b").rglob("last.ckpt")
+def _two_step_checkpoint(config: str, root: Path) -> Path:
+    """``last.ckpt`` of a 2-step ``fit`` of a bundled config under ``root``."""
+    argv = ["fit", "--config", config, "--trainer.max_steps=2", "--trainer.logger=false"]
+    main([*argv, "--trainer.default_root_dir", str(root)])
+    (ckpt,) = root.rglob("last.ckpt")
+    return ckpt
+
+
+def _test_error_lines(capsys, ckpt: Path) -> list[str]:
+    """``test --config spring_fast.yaml --ckpt_path ckpt`` must exit 2: its error lines."""
     capsys.readouterr()
     with pytest.raises(SystemExit) as info:
         main(["test", "--config", "spring_fast.yaml", "--ckpt_path", str(ckpt)])
     assert info.value.code == 2
-    err = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+    return [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+
+
+def test_a_checkpoint_of_another_model_class_is_refused(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    ckpt = _two_step_checkpoint("spring_fast_baseline.yaml", tmp_path / "b")
+    err = _test_error_lines(capsys, ckpt)
     assert len(err) == 1 and "hnn_pl.models.baseline.Baseline" in err[0]
     assert "builds a hnn_pl.models.HNN" in err[0] and str(ckpt) in err[0]
 
@@ -119,15 +130,9 @@ def test_a_checkpoint_that_is_more_than_weights_is_not_unpickled(capsys, monkeyp
     import torch
 
     monkeypatch.chdir(tmp_path)
-    argv = ["fit", "--config", "spring_fast.yaml", "--trainer.max_steps=2"]
-    main([*argv, "--trainer.logger=false", "--trainer.default_root_dir", str(tmp_path / "h")])
-    (ckpt,) = (tmp_path / "h").rglob("last.ckpt")
+    ckpt = _two_step_checkpoint("spring_fast.yaml", tmp_path / "h")
     payload = torch.load(ckpt, weights_only=True)
     payload["extra"] = _Payload()
     torch.save(payload, ckpt)
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as info:
-        main(["test", "--config", "spring_fast.yaml", "--ckpt_path", str(ckpt)])
-    assert info.value.code == 2
-    err = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+    err = _test_error_lines(capsys, ckpt)
     assert len(err) == 1 and "Weights only load failed" in err[0]
