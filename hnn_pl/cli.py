@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import os
 import warnings
-from pathlib import Path
 from typing import Any
 
 from lightning.pytorch import LightningDataModule, LightningModule
@@ -26,7 +25,18 @@ from lightning.pytorch.cli import (
 # imported for their subclasses: what makes the short class names resolve
 from hnn_pl import data, models, systems
 from hnn_pl.__main__ import program_name
+from hnn_pl.cli_errors import (
+    CLIError,
+    check_checkpoint,
+    check_ckpt_path,
+    check_starts,
+    check_threads,
+    checkpoint_init_args,
+    loaded_class,
+    one_line,
+)
 from hnn_pl.config_paths import resolve_config_args
+from hnn_pl.safe_io import load_checkpoint
 
 #: the packages whose classes the CLI knows by their short names
 REGISTERED = (models, data, systems)
@@ -57,6 +67,13 @@ class HNNArgumentParser(LightningArgumentParser):
             kwargs.setdefault("prog", program_name())
         super().__init__(*args, **kwargs)
 
+    def error(self, message: str, ex: Exception | None = None):
+        """A parse error of the command line is one line (:func:`cli_errors.one_line`),
+        no usage dump; parsers that do not exit on errors raise as before."""
+        if not self.exit_on_error:
+            return super().error(message, ex)
+        raise CLIError(one_line(message, self)) from None
+
 
 def choose_threads(requested: int | str | None = "auto") -> int:
     """Torch threads for this process: ``requested`` if a number; ``"auto"``: the cores
@@ -66,10 +83,8 @@ def choose_threads(requested: int | str | None = "auto") -> int:
     other at every operation (BENCHMARKS.md, threads under load); 1 thread then runs
     as fast as on an idle machine.
     """
-    if requested not in (None, "auto"):
-        n = int(requested)
-        if n < 1:
-            raise ValueError(f"threads must be >= 1 or 'auto', got {requested!r}")
+    n = check_threads(requested)
+    if n is not None:
         return n
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     try:
@@ -92,16 +107,24 @@ class HNNCLI(LightningCLI):
             help="torch threads: a number, or auto (cores not busy with other processes)",
         )
 
-    def parse_arguments(self, parser, args) -> None:
-        """Parse, then refuse a ``--ckpt_path`` of another model class than the config's
-        (LightningCLI would otherwise build the checkpoint's class under the config's
-        run name)."""
-        super().parse_arguments(parser, args)
+    def _parse_ckpt_path(self) -> None:
+        """A ``--ckpt_path`` is data: read it safely (one line if it is missing,
+        empty, damaged or more than weights), refuse one of another model class than
+        the config's (compared as names, nothing it names is imported; LightningCLI
+        would import its ``_class_path`` and build that class under the config's run
+        name), and restore its plain hyperparameters into the config's class."""
         sub = self.config.get("subcommand")
         config = self.config.get(sub) if sub else None
         ckpt_path = config.get("ckpt_path") if config else None
-        if ckpt_path and Path(ckpt_path).is_file():
-            _refuse_other_model_class(ckpt_path, config.get("model"))
+        if not check_ckpt_path(ckpt_path):
+            return
+        ckpt = load_checkpoint(ckpt_path)
+        model = config.get("model")
+        check_checkpoint(ckpt_path, ckpt, model)
+        restored = checkpoint_init_args(ckpt, getattr(model, "init_args", None))
+        if restored:
+            update = {sub: {"model": {"class_path": model.class_path, "init_args": restored}}}
+            self.config = self.parser.parse_object(update, self.config)
 
     def before_instantiate_classes(self) -> None:
         import torch
@@ -112,25 +135,39 @@ class HNNCLI(LightningCLI):
         if "weights_only" in config and config["weights_only"] is None:
             config["weights_only"] = True  # a checkpoint cannot run code when loaded
 
+    def instantiate_classes(self) -> None:
+        """Build the classes; Lightning's refusals of trainer options (``max_steps:
+        -5``) become one line."""
+        from lightning.fabric.utilities.exceptions import MisconfigurationException
 
-def _class(path: str) -> type:
-    import importlib
+        try:
+            super().instantiate_classes()
+        except MisconfigurationException as err:
+            raise CLIError(f"trainer: {str(err).strip().splitlines()[0]}") from None
 
-    module, name = path.rsplit(".", 1)
-    return getattr(importlib.import_module(module), name)
+    def after_instantiate_classes(self) -> None:
+        """Checkpoints are saved atomically (a failed save never replaces a good
+        ``last.ckpt``); ``predict``'s file of starts is checked before any data."""
+        from hnn_pl.callbacks import RolloutWriter
+        from hnn_pl.safe_io import AtomicCheckpointIO
+
+        super().after_instantiate_classes()
+        if getattr(self, "trainer", None) is None:
+            return
+        self.trainer.strategy.checkpoint_io = AtomicCheckpointIO()
+        for callback in self.trainer.callbacks:
+            if isinstance(callback, RolloutWriter) and callback.starts is not None:
+                check_starts(callback.starts, _start_width(self.model, self.datamodule))
 
 
-def _refuse_other_model_class(ckpt_path: str, model: Any) -> None:
-    import torch
+def _start_width(model: Any, datamodule: Any) -> int:
+    """The width of a start ``predict`` integrates from: a pixel model's frame pair
+    (``input_dim``), else the data's ``state_dim``."""
+    from hnn_pl.rollouts import is_pixel_model
 
-    class_path = getattr(model, "class_path", None)
-    ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
-    saved = ckpt.get("hnn_pl_model_class") or ckpt.get("hyper_parameters", {}).get("_class_path")
-    if class_path and saved and _class(saved) is not _class(class_path):
-        raise ValueError(
-            f"checkpoint {ckpt_path} holds a {saved} but the config builds a {class_path}: "
-            "use the config the checkpoint was trained with"
-        )
+    if is_pixel_model(model):
+        return int(model.hparams["input_dim"])
+    return int(datamodule.state_dim)
 
 
 def _refuse_explicit_input_dim(model: Any) -> None:
@@ -142,7 +179,10 @@ def _refuse_explicit_input_dim(model: Any) -> None:
     given = getattr(getattr(model, "init_args", None), "input_dim", None)
     if class_path is None or given is None:
         return
-    params = inspect.signature(_class(class_path)).parameters
+    cls = loaded_class(class_path)  # the config's class: imported when it was parsed
+    if cls is None:
+        return
+    params = inspect.signature(cls).parameters
     if "input_dim" in params and given != params["input_dim"].default:
         raise ValueError(
             f"model.init_args.input_dim = {given}: the model's input size is taken from the "
@@ -152,6 +192,8 @@ def _refuse_explicit_input_dim(model: Any) -> None:
 
 def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) -> HNNCLI:
     """Run the CLI on ``args`` (``sys.argv[1:]`` when ``None``); returns the CLI object.
+    Bad input raises :class:`~hnn_pl.cli_errors.CLIError` (or another one-line
+    ``ValueError``) before any data, directory or checkpoint is written.
     ``save_config=False``: no ``config.yaml`` beside the run (programmatic fits)."""
     import sys
 

@@ -37,9 +37,18 @@ def resolve_config(name: str) -> str:
     for candidate in (CONFIG_DIR / name, CONFIG_DIR / f"{name}.yaml"):
         if candidate.is_file():
             return str(candidate)
+    import difflib
+
+    names = bundled_configs()
+    stems = {Path(n).stem: n for n in names}
+    close = difflib.get_close_matches(Path(name).name, [*names, *stems], n=1, cutoff=0.6)
+    if close:
+        raise FileNotFoundError(
+            f"config {name!r} is neither a file nor a bundled config; did you mean "
+            f"{stems.get(close[0], close[0])}?"
+        )
     raise FileNotFoundError(
-        f"config {name!r} is neither a file nor one of the bundled configs: "
-        + ", ".join(bundled_configs())
+        f"config {name!r} is neither a file nor one of the bundled configs: " + ", ".join(names)
     )
 
 
@@ -57,7 +66,9 @@ def check_config_file(path: str) -> str:
         at = f" at line {where.line + 1}, column {where.column + 1}" if where else ""
         problem = getattr(err, "problem", None) or type(err).__name__
         raise ValueError(f"config {path}: not valid YAML{at}: {problem}") from None
-    if data is not None and not isinstance(data, dict):
+    if data is None or data == {}:
+        raise ValueError(f"config {path}: the file is empty (expected a mapping of options)")
+    if not isinstance(data, dict):
         raise ValueError(f"config {path}: expected a mapping of options, got {type(data).__name__}")
     return path
 

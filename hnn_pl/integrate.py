@@ -24,7 +24,9 @@ within float32 rounding of an integer counts as that integer, so a grid built in
 float32 (``linspace(0, 20, 201)``, ``step_size=0.1``) takes one step per interval.
 ``dopri5`` controls the error of every trajectory separately (see :class:`Dopri5`).
 
-Containment: a row whose state turns non-finite or exceeds ``blowup · (1 + |y0|∞)``,
+Containment: a row that starts non-finite stops at once (:attr:`Status.DIVERGED` at
+``t[0]``, whatever the field returns there); a row whose state turns non-finite or
+exceeds ``blowup · (1 + |y0|∞)``,
 whose implicit iteration fails, or whose adaptive step underflows, stalls (steps no
 longer change the state: a tolerance below the dtype's resolution), turns stiff or
 runs out of steps stops alone; the other rows are as in a run without it (exactly;
@@ -79,7 +81,7 @@ class Status(enum.IntEnum):
     """Why a row of :func:`odeint` stopped (``OK``: it reached the last time)."""
 
     OK = 0
-    DIVERGED = 1  # non-finite, or |y| beyond blowup · (1 + |y0|)
+    DIVERGED = 1  # started or became non-finite, or |y| beyond blowup · (1 + |y0|)
     NOT_CONVERGED = 2  # implicit_midpoint's fixed-point iteration
     STEP_UNDERFLOW = 3  # dopri5: the step size fell below the resolution of t
     STALLED = 4  # dopri5: accepted steps no longer change the state
@@ -93,7 +95,7 @@ class Status(enum.IntEnum):
 
 _HINTS = {
     Status.OK: "",
-    Status.DIVERGED: "the state became non-finite or blew up",
+    Status.DIVERGED: "the state started or became non-finite, or blew up",
     Status.NOT_CONVERGED: "the implicit iteration did not converge: use a smaller step_size "
     "(it contracts only for h * Lipschitz(f) / 2 < 1)",
     Status.STEP_UNDERFLOW: "step size underflow: a singularity or a field that is non-finite there",
@@ -148,7 +150,8 @@ class _Rows:
         self.status = torch.zeros(B, dtype=torch.long, device=y0.device)
         self.t_stop = torch.full((B,), math.nan, dtype=torch.float64, device=y0.device)
         self.alive = torch.ones(B, dtype=torch.bool, device=y0.device)
-        self.limit = blowup * (1 + y0.detach().abs().amax(-1))
+        big = torch.finfo(y0.dtype).max
+        self.limit = (blowup * (1 + y0.detach().abs().amax(-1))).clamp(max=big)
         self.lowest = float(self.limit.min())
         self.any_stopped = False
 
@@ -277,7 +280,7 @@ class Leapfrog(_FixedStep):
                     "nor second order. Use method='implicit_midpoint', or "
                     "options={'check_separable': False} to skip this check.",
                     UserWarning,
-                    stacklevel=4,
+                    stacklevel=5,
                 )
         return f0[..., y0.shape[-1] // 2 :]
 
@@ -524,7 +527,7 @@ class Dopri5(_Solver):
                 tol = (self.atol + self.rtol * torch.maximum(y.abs(), y1.abs())).clamp_min(tiny)
                 ratio = _rms(err / tol).to(tdtype).nan_to_num(nan=math.inf)
                 acc = ratio <= 1
-                blown = torch.zeros_like(acc)
+                blown = acc & ~torch.isfinite(y1).all(-1)
                 if check:
                     still = ((y1 - y).abs() <= eps * y.abs()).all(-1) & (f != 0).any(-1)
                     stiff_run = torch.where(acc, (stiff_run + 1) * (h_lambda > 3.25), stiff_run)
@@ -539,8 +542,9 @@ class Dopri5(_Solver):
             h1 = torch.where(last, t_end - t1, h1)
             under = (h1 < 1e-14 * t1.abs().clamp(min=span)) & ~done
             stopped = torch.zeros_like(done)
+            under = under | blown
             if check:
-                under = under | blown | (stall_run >= _STALL_CHECKS) | (stiff_run >= stiff_limit)
+                under = under | (stall_run >= _STALL_CHECKS) | (stiff_run >= stiff_limit)
             if bool(under.any()):
                 stops = (
                     (blown | (under & ~torch.isfinite(ratio)), Status.DIVERGED),
@@ -690,11 +694,12 @@ def odeint(
         dt = t[1:] - t[:-1]
         if bool((dt < 0).all()):
             solver.sign = -1.0
-            sol = solver.integrate(_checked(_reversed(func)), y, -t)
+            field, times = _reversed(func), -t
         elif bool((dt > 0).all()):
-            sol = solver.integrate(_checked(func), y, t)
+            field, times = func, t
         else:
             raise ValueError("t must be strictly increasing or strictly decreasing")
+        sol = _finite_rows(solver, _checked(field), y, times, float(t[0]))
     if squeeze:
         sol = Solution(sol.y[:, 0], sol.status[0], sol.t_stop[0])
     if return_status:
@@ -702,6 +707,30 @@ def odeint(
     if not bool(sol.ok.all()):
         raise RuntimeError(sol.describe(method))
     return sol.y
+
+
+def _finite_rows(solver: _Solver, func: Field, y0: Tensor, t: Tensor, t0: float) -> Solution:
+    """``solver.integrate`` of the rows of ``y0 (B, D)`` that start finite; the others
+    stop at once with :attr:`Status.DIVERGED` at ``t0`` (their output: the start, then
+    NaN), whatever the field returns there (a tanh field is finite at ``inf``)."""
+    finite = torch.isfinite(y0.detach()).all(-1)
+    if bool(finite.all()):
+        return solver.integrate(func, y0, t)
+    B = y0.shape[0]
+    status = torch.full((B,), int(Status.DIVERGED), dtype=torch.long, device=y0.device)
+    t_stop = torch.full((B,), t0, dtype=torch.float64, device=y0.device)
+    y = torch.cat([y0[None], y0.new_full((t.shape[0] - 1, *y0.shape), math.nan)])
+    if bool(finite.any()):
+        sol = solver.integrate(func, y0[finite], t)
+        rows = finite.nonzero().flatten()
+        y = _put_rows(y, rows, sol.y)
+        status[rows], t_stop[rows] = sol.status, sol.t_stop
+    return Solution(y, status, t_stop)
+
+
+def _put_rows(y: Tensor, rows: Tensor, values: Tensor) -> Tensor:
+    """``y (T, B, D)`` with the columns ``rows`` replaced by ``values (T, R, D)``."""
+    return y.transpose(0, 1).index_put((rows,), values.transpose(0, 1)).transpose(0, 1)
 
 
 def _checked(func: Field) -> Field:

@@ -12,6 +12,7 @@ second run with the same parameters skips generation. ``setup`` exposes:
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -22,6 +23,8 @@ from typing import Any
 import lightning as L
 import torch
 from torch import Tensor
+
+from hnn_pl.safe_io import no_space, save_atomic
 
 CACHE_VERSION = 2
 
@@ -205,7 +208,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         A cache file holds ``{"data", "params", "sha256"}``: the tensors, the
         parameters that made them and a SHA-256 of their bytes. A file that cannot
         be read, or whose parameters or checksum disagree, is reported and rebuilt.
-        Files are written whole (a temporary file renamed into place).
+        Files are written whole (a temporary file renamed into place; a failure,
+        such as a full disk, leaves no partial file).
         """
         self.load_data()
 
@@ -219,11 +223,14 @@ class TrajectoryDataModule(L.LightningDataModule):
 
     def _write_cache(self, data: dict[str, Tensor]) -> None:
         path = self.cache_path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            if err.errno == errno.ENOSPC:
+                raise no_space(path) from None
+            raise
         params = json.loads(json.dumps(self._cache_params(), default=str))
-        torch.save({"data": data, "params": params, "sha256": _checksum(data)}, tmp)
-        tmp.replace(path)
+        save_atomic({"data": data, "params": params, "sha256": _checksum(data)}, path)
 
     def _load_cache(self) -> dict[str, Tensor] | None:
         """The cached tensors, or ``None`` (with a warning if a file was there but bad)."""

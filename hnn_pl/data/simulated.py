@@ -9,7 +9,12 @@ import torch
 from torch import Tensor
 
 from hnn_pl.data.base import TrajectoryDataModule, require, split_sizes
-from hnn_pl.systems.base import HamiltonianSystem, system_spec
+from hnn_pl.safe_io import require_memory
+from hnn_pl.systems.base import HamiltonianSystem, check_system, source_digest, system_spec
+
+#: bytes per state value while a data set is made: float64 trajectories, targets,
+#: noisy inputs, their splits, the integrator's output buffers and the served copy
+_BYTES_PER_VALUE = 8 * 9
 
 
 class SimulatedData(TrajectoryDataModule):
@@ -22,6 +27,11 @@ class SimulatedData(TrajectoryDataModule):
     ``N(0, noise_std²)`` noise on every coordinate. The split is by trajectory: a
     ``test_fraction`` of them, the first ones if ``test_first`` (two-/three-body
     reference) else the last ones (spring/pendulum reference).
+
+    Checked when built, before anything is written: a data set whose estimated
+    memory exceeds the machine's, and a system whose sampler or ``H`` is wrong on the
+    data's own starts (:func:`~hnn_pl.systems.base.check_system`), are refused in one
+    line. The cache key covers the source of a system defined outside this package.
 
     Args:
         system: the physical system (``class_path`` in YAML).
@@ -61,6 +71,11 @@ class SimulatedData(TrajectoryDataModule):
         self.n_trajectories, self.n_points, self.noise_std = n_trajectories, n_points, noise_std
         self.t_span = tuple(float(t) for t in t_span)
         self.test_fraction, self.test_first = test_fraction, test_first
+        require_memory(
+            _BYTES_PER_VALUE * n_trajectories * n_points * system.state_dim,
+            f"a data set of {n_trajectories:,} trajectories × {n_points} points",
+        )
+        check_system(system, system.sample_initial(n_trajectories, self._generator()))
 
     @property
     def state_dim(self) -> int:
@@ -69,7 +84,12 @@ class SimulatedData(TrajectoryDataModule):
     def cache_params(self) -> dict[str, Any]:
         names = ("n_trajectories", "t_span", "n_points", "noise_std", "test_fraction", "test_first")
         params = {name: getattr(self, name) for name in (*names, "seed")}
-        return {"system": system_spec(self.system), **params}
+        source = source_digest(type(self.system))
+        return {
+            "system": system_spec(self.system),
+            **params,
+            **({"source": source} if source else {}),
+        }
 
     def generate(self) -> dict[str, Tensor]:
         g = self._generator()

@@ -7,7 +7,9 @@ freedom; batch dimensions come first. The symplectic matrix is
 
 from __future__ import annotations
 
+import hashlib
 from abc import ABC, abstractmethod
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -31,6 +33,75 @@ def system_spec(system: object) -> dict:
         if not k.startswith("_")
     }
     return {"class_path": f"{cls.__module__}.{cls.__qualname__}", "init_args": params}
+
+
+def source_digest(cls: type) -> str | None:
+    """SHA-256 (16 hex digits) of the source file defining ``cls`` if it lies outside
+    this package (a user's system: editing its ``hamiltonian`` must change the data
+    cache's key), else ``None`` (the package's own systems change with
+    ``CACHE_VERSION``). Without a source file (a class typed into a session), the
+    compiled code of the class's methods."""
+    import inspect
+    import marshal
+
+    if cls.__module__.split(".")[0] == "hnn_pl":
+        return None
+    digest = hashlib.sha256()
+    try:
+        digest.update(Path(inspect.getsourcefile(cls) or "").read_bytes())
+    except (TypeError, OSError):
+        for name, value in sorted(vars(cls).items()):
+            code = getattr(getattr(value, "__func__", value), "__code__", None)
+            digest.update(name.encode() + (marshal.dumps(code) if code else repr(value).encode()))
+    return digest.hexdigest()[:16]
+
+
+def check_system(system: HamiltonianSystem, starts: Tensor) -> None:
+    """Refuse a system whose sampler or ``H`` would make wrong data, in one
+    ``ValueError`` line naming the class: ``starts`` (what ``sample_initial(n, g)``
+    returned) must be float64 of shape ``(n, 2·dof)`` and finite; ``hamiltonian`` must
+    map them to finite ``(n,)`` and ``vector_field`` to finite ``(n, 2·dof)``."""
+    name = system_spec(system)["class_path"]
+    D = system.state_dim
+    if not isinstance(starts, Tensor):
+        raise ValueError(
+            f"system {name}: sample_initial returned a {type(starts).__name__}, not a tensor"
+        )
+    n = starts.shape[0] if starts.ndim else 0
+    if starts.shape != (n, D):
+        raise ValueError(
+            f"system {name}: sample_initial returned shape {tuple(starts.shape)}; expected "
+            f"({n}, {D}) = (n, 2·dof) with dof = {system.dof}"
+        )
+    if starts.dtype != torch.float64:
+        raise ValueError(
+            f"system {name}: sample_initial returned {starts.dtype}; expected torch.float64"
+        )
+    _require_finite(name, "sample_initial", starts, starts)
+    with torch.no_grad():
+        h = system.hamiltonian(starts)
+    if not isinstance(h, Tensor) or h.shape != (n,):
+        shape = tuple(h.shape) if isinstance(h, Tensor) else type(h).__name__
+        raise ValueError(
+            f"system {name}: hamiltonian returned {shape} for states of shape ({n}, {D}); "
+            f"expected ({n},), one energy per state"
+        )
+    _require_finite(name, "hamiltonian", h, starts)
+    f = system.vector_field(None, starts)
+    if not isinstance(f, Tensor) or f.shape != (n, D):
+        shape = tuple(f.shape) if isinstance(f, Tensor) else type(f).__name__
+        raise ValueError(f"system {name}: vector_field returned {shape}; expected ({n}, {D})")
+    _require_finite(name, "vector_field", f, starts)
+
+
+def _require_finite(name: str, what: str, values: Tensor, starts: Tensor) -> None:
+    bad = ~torch.isfinite(values.reshape(values.shape[0], -1)).all(-1)
+    if bool(bad.any()):
+        first = starts[bad.nonzero()[0, 0]].tolist()
+        raise ValueError(
+            f"system {name}: {what} is not finite at {int(bad.sum())} of {len(bad)} sampled "
+            f"starts (e.g. y = {[float(f'{v:.4g}') for v in first]})"
+        )
 
 
 def unit_and_radius(

@@ -1,0 +1,252 @@
+"""The CLI's error layer: every refusal is one line, and comes before any work.
+
+- :func:`one_line`: jsonargparse's nested, multi-line parse errors (and its usage
+  dump) become one line naming the option, with the closest valid names
+  (``did you mean hidden_dim?``).
+- :func:`check_checkpoint`: a ``--ckpt_path`` is read as data (:func:`load_checkpoint`)
+  and the model class it names is compared *as a string* with the class the config
+  builds; nothing a checkpoint names is ever imported.
+- :func:`checkpoint_init_args`: the plain hyperparameters of a checkpoint that the
+  config's class takes (what LightningCLI restores, without resolving a class path).
+- :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor.
+
+Class names are resolved only among modules already imported (the config's classes,
+imported when the config was parsed): see :func:`loaded_class`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import math
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+#: ``ckpt_path`` values Lightning resolves itself (not files)
+SPECIAL_CKPT_PATHS = ("last", "best", "hpc")
+
+
+class CLIError(ValueError):
+    """Bad command-line input: printed as one line, exit status 2."""
+
+
+def did_you_mean(word: str, candidates: list[str] | set[str], prefix: str = "") -> str:
+    """``"; did you mean X?"`` (or ``"X or Y?"``) for the closest candidates, else ``""``."""
+    scored = sorted((difflib.SequenceMatcher(None, word, c).ratio(), c) for c in set(candidates))[
+        ::-1
+    ]
+    close = [c for r, c in scored[:2] if r >= 0.6 and r >= scored[0][0] - 0.1]
+    if not close:
+        return ""
+    return "; did you mean " + " or ".join(prefix + c for c in close) + "?"
+
+
+def loaded_class(path: str) -> type | None:
+    """The class at the dotted ``path`` if its module is already imported, else
+    ``None``. Never imports: a name read from a file must not run code."""
+    module, _, name = path.rpartition(".")
+    obj = sys.modules.get(module)
+    for part in name.split("."):
+        obj = getattr(obj, part, None) if obj is not None else None
+    return obj if isinstance(obj, type) else None
+
+
+def class_name(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def init_parameters(cls: type) -> list[str]:
+    """Named parameters of ``cls(...)``, following ``**kwargs`` up the MRO."""
+    names: list[str] = []
+    for klass in cls.__mro__:
+        init = vars(klass).get("__init__")
+        if init is None:
+            continue
+        params = inspect.signature(init).parameters.values()
+        names += [p.name for p in params if p.name != "self" and p.kind not in (2, 4)]
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
+    return list(dict.fromkeys(names))
+
+
+# --------------------------------------------------------------------- parse errors
+
+_NOISE = (
+    "Does not validate against",
+    "Subtypes:",
+    "Errors:",
+    "- Expected a <class 'NoneType'>",
+    "Given value",
+    "- Expected a path but",
+    "Parser key",
+    "Problem with given class_path",
+)
+
+
+def one_line(message: str, parser: Any = None) -> str:
+    """jsonargparse's error ``message`` as one line, with suggestions from ``parser``'s
+    options or from the classes already imported."""
+    text = message.strip()
+    unknown = re.match(r"unrecognized arguments: (.*)", text)
+    if unknown:
+        given = [a.split("=")[0] for a in unknown.group(1).split() if a.startswith("-")]
+        option = given[0] if given else unknown.group(1)
+        return f"unknown option {option}" + did_you_mean(option, _option_strings(parser))
+    keys = re.findall(r'Parser key "([^"]+)"', text)
+    key = ".".join(keys) + ": " if keys else ""
+    classes = re.findall(r"Problem with given class_path '([^']+)'", text)
+    option = re.search(r"Option '([^']+)' is not accepted", text)
+    if option:
+        owner = classes[-1] if classes else "the class"
+        cls = loaded_class(owner) if classes else None
+        names = init_parameters(cls) if cls is not None else []
+        return f"{key}{owner} has no option {option.group(1)!r}" + did_you_mean(
+            option.group(1), names
+        )
+    missing = re.search(r"module '([^']+)' has no attribute '([^']+)'", text)
+    if missing:
+        module, name = missing.groups()
+        found = [n for n, v in vars(sys.modules.get(module, object)).items() if _public_class(n, v)]
+        return f"{key}no class {name} in {module}" + did_you_mean(name, found, module + ".")
+    short = re.search(r"Expected a dot import path string: (\S+)", text)
+    if short:
+        name = short.group(1)
+        return f"{key}unknown class {name!r}" + did_you_mean(name, _known_class_names())
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    useful = [line for line in lines if not line.startswith(_NOISE)]
+    detail = (useful or lines or [type(message).__name__])[-1].lstrip("- ")
+    detail = re.sub(
+        r"Expected a <class '(\w+)'>\. Got value: (.*)", r"expected \1, got '\2'", detail
+    )
+    where = f" (class path {classes[-1]})" if classes and "No module named" in detail else ""
+    if detail.startswith("Unexpected config"):
+        detail = "the config has no options" if detail.endswith(":") else detail
+    return f"{key}{detail}{where}"
+
+
+def _public_class(name: str, value: Any) -> bool:
+    return isinstance(value, type) and not name.startswith("_")
+
+
+def _known_class_names() -> set[str]:
+    """Short names of the classes of the packages the CLI registers."""
+    names: set[str] = set()
+    for package in ("hnn_pl.models", "hnn_pl.data", "hnn_pl.systems", "hnn_pl.callbacks"):
+        names |= {
+            n for n, v in vars(sys.modules.get(package, object)).items() if _public_class(n, v)
+        }
+    return names
+
+
+def _option_strings(parser: Any) -> set[str]:
+    """Every long option of ``parser`` and of its subcommands' parsers."""
+    found: set[str] = set()
+    stack = [parser] if parser is not None else []
+    while stack:
+        p = stack.pop()
+        for action in getattr(p, "_actions", []):
+            found |= {s for s in action.option_strings if s.startswith("--")}
+            choices = getattr(action, "choices", None)
+            if isinstance(choices, dict):
+                stack += [c for c in choices.values() if hasattr(c, "_actions")]
+    return found
+
+
+# ------------------------------------------------------------------- checkpoints
+
+
+def check_ckpt_path(ckpt_path: str | None) -> bool:
+    """Whether ``ckpt_path`` names a file to check; a missing one is a :class:`CLIError`."""
+    if not ckpt_path or ckpt_path in SPECIAL_CKPT_PATHS or str(ckpt_path).startswith("registry"):
+        return False
+    if not Path(ckpt_path).exists():
+        raise CLIError(f"checkpoint {ckpt_path}: no such file")
+    return True
+
+
+def check_checkpoint(ckpt_path: str, ckpt: dict[str, Any], model: Any) -> None:
+    """Refuse a checkpoint whose saved model class (``hnn_pl_model_class``, or
+    LightningCLI's ``_class_path``) is not the class the config builds. Compared as
+    names: a saved name counts as the config's class only if it is spelled like it or
+    names the same class in a module already imported."""
+    class_path = getattr(model, "class_path", None)
+    if not class_path:
+        return
+    config_cls = loaded_class(class_path)
+    names = {class_path} | ({class_name(config_cls)} if config_cls else set())
+    hparams = ckpt.get("hyper_parameters") or {}
+    for saved in (ckpt.get("hnn_pl_model_class"), hparams.get("_class_path")):
+        if saved is None:
+            continue
+        same = isinstance(saved, str) and (
+            saved in names or (config_cls is not None and loaded_class(saved) is config_cls)
+        )
+        if not same:
+            raise CLIError(
+                f"checkpoint {ckpt_path} holds a {saved} but the config builds a {class_path}: "
+                "use the config the checkpoint was trained with"
+            )
+
+
+def _plain(value: Any) -> bool:
+    if isinstance(value, (list, tuple)):
+        return all(_plain(v) for v in value)
+    return value is None or isinstance(value, (bool, int, float, str))
+
+
+def checkpoint_init_args(ckpt: dict[str, Any], init_args: Any) -> dict[str, Any]:
+    """The checkpoint's hyperparameters that restore the config's ``init_args``: keys the
+    config already has with a plain value, given plain values (never a class path),
+    except ``input_dim`` (linked from the data)."""
+    hparams = ckpt.get("hyper_parameters") or {}
+    current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
+    return {
+        k: v
+        for k, v in hparams.items()
+        if k in current and k != "input_dim" and _plain(v) and _plain(current[k])
+    }
+
+
+# ------------------------------------------------------------------------ starts
+
+
+def check_starts(path: str, width: int) -> None:
+    """Refuse a ``predict`` file of starts that is missing, not a tensor, not
+    ``(B, width)`` or not finite, before any data or directory is made."""
+    if not Path(path).is_file():
+        raise CLIError(f"starts {path}: no such file")
+    import torch
+
+    try:
+        y0 = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception:  # noqa: BLE001 - any unreadable file is the same user error
+        raise CLIError(f"starts {path}: cannot be read as a torch-saved tensor") from None
+    if not torch.is_tensor(y0) or not y0.is_floating_point():
+        kind = f"{y0.dtype} tensor" if torch.is_tensor(y0) else type(y0).__name__
+        raise CLIError(f"starts {path}: holds a {kind}; expected a float tensor (B, {width})")
+    if y0.ndim != 2 or y0.shape[1] != width or y0.shape[0] == 0:
+        raise CLIError(
+            f"starts {path}: shape {tuple(y0.shape)}; the model's states need (B, {width})"
+        )
+    bad = ~torch.isfinite(y0).all(-1)
+    if bool(bad.any()):
+        rows = bad.nonzero().flatten().tolist()
+        raise CLIError(
+            f"starts {path}: {len(rows)} of {y0.shape[0]} rows are not finite (rows "
+            f"{rows[:5]}{'...' if len(rows) > 5 else ''})"
+        )
+
+
+def check_threads(requested: Any) -> int | None:
+    """``--threads``: ``None`` for ``"auto"``/unset, else an int >= 1 (CLIError)."""
+    if requested in (None, "auto"):
+        return None
+    try:
+        n = int(requested)
+    except (TypeError, ValueError):
+        n = math.nan
+    if not (isinstance(n, int) and n >= 1):
+        raise CLIError(f"threads must be >= 1 or 'auto', got {requested!r}")
+    return n

@@ -1,0 +1,141 @@
+"""Files that are data, written whole, within the machine's means.
+
+- :func:`load_checkpoint`: a checkpoint read as tensors and plain data only
+  (``weights_only``); an empty, truncated, foreign or code-carrying file is one
+  ``ValueError`` line naming the file, never torch's advice to load it unsafely.
+- :func:`write_atomic`, :func:`save_atomic`, :class:`AtomicCheckpointIO`: a file is
+  written to a temporary name beside it and renamed into place, so a failure (a full
+  disk, Ctrl-C) leaves the previous file and no partial one; a full disk is
+  ``OSError("no space left on <directory>")``.
+- :func:`require_memory`: refuse work whose estimated memory exceeds the machine's.
+"""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+import pickle
+from pathlib import Path
+from typing import Any
+
+import torch
+from lightning.fabric.plugins.io.torch_io import TorchCheckpointIO
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """The dict in the checkpoint at ``path``, loaded with ``weights_only=True`` on CPU.
+
+    Raises:
+        ValueError: one line naming the file: missing, a directory, empty, truncated,
+            not a torch file, holding more than weights, or not a dict.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"checkpoint {path}: no such file")
+    if path.is_dir():
+        raise ValueError(f"checkpoint {path}: is a directory, not a checkpoint file")
+    if path.stat().st_size == 0:
+        raise ValueError(f"checkpoint {path}: the file is empty")
+    try:
+        ckpt = torch.load(path, weights_only=True, map_location="cpu")
+    except pickle.UnpicklingError as err:
+        found = [line for line in str(err).splitlines() if "Unsupported global:" in line]
+        if not found:
+            raise ValueError(
+                f"checkpoint {path}: cannot be read (not a torch checkpoint)"
+            ) from None
+        what = found[0].split("Unsupported global:")[1].split(" was not")[0].strip()
+        raise ValueError(
+            f"checkpoint {path}: refused, it holds more than weights and plain data "
+            f"({what}); a checkpoint is never run as code"
+        ) from None
+    except RuntimeError as err:
+        reason = "truncated or damaged" if "zip archive" in str(err) else "not a torch checkpoint"
+        raise ValueError(f"checkpoint {path}: cannot be read ({reason})") from None
+    except (EOFError, KeyError, ValueError, IndexError, TypeError, AttributeError):
+        raise ValueError(f"checkpoint {path}: cannot be read (not a torch checkpoint)") from None
+    except OSError as err:
+        raise ValueError(f"checkpoint {path}: cannot be read ({err.strerror or err})") from None
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"checkpoint {path}: holds a {type(ckpt).__name__}, not a checkpoint")
+    return ckpt
+
+
+def no_space(path: str | os.PathLike) -> OSError:
+    """The one-line error (errno ``ENOSPC``) of a full file system while writing ``path``."""
+    err = OSError(f"no space left on {Path(path).parent}")
+    err.errno = errno.ENOSPC
+    return err
+
+
+def write_atomic(path: str | os.PathLike, data: bytes | memoryview) -> None:
+    """Write ``data`` to ``path`` whole: a temporary file beside it, then a rename.
+
+    On any failure the temporary file is removed and ``path`` is as it was; a full
+    file system raises :func:`no_space`.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException as err:
+        tmp.unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise no_space(path) from None
+        raise
+
+
+def save_atomic(obj: Any, path: str | os.PathLike) -> None:
+    """``torch.save(obj, path)`` through :func:`write_atomic`."""
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    write_atomic(path, buffer.getbuffer())
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint IO with atomic saves (:func:`save_atomic`): a failed save
+    (no space, an interrupt) never replaces a good ``last.ckpt`` with a partial one."""
+
+    def save_checkpoint(
+        self, checkpoint: dict[str, Any], path: Any, storage_options: Any = None
+    ) -> None:
+        if storage_options is not None:
+            raise TypeError(f"{type(self).__name__} takes no storage_options")
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        save_atomic(checkpoint, path)
+
+
+def machine_memory() -> int:
+    """Bytes of memory this process may use: the physical memory, or a smaller
+    cgroup limit."""
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    for limit_file in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = Path(limit_file).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit():
+            total = min(total, int(text))
+    return total
+
+
+def require_memory(nbytes: float, what: str) -> None:
+    """``ValueError`` if ``nbytes`` (an estimate) exceeds :func:`machine_memory`."""
+    have = machine_memory()
+    if nbytes > have:
+        raise ValueError(
+            f"{what} needs about {_size(nbytes)} of memory; this machine has {_size(have)}"
+        )
+
+
+def _size(n: float) -> str:
+    units = ("B", "KB", "MB", "GB", "TB", "PB")
+    k = 0
+    while n >= 1000 and k < len(units) - 1:
+        n, k = n / 1000, k + 1
+    return f"{n:.3g} {units[k]}"
