@@ -106,13 +106,14 @@ class _LatentModel(nn.Module):
 def main(argv: list[str] | None = None) -> int:
     """``python -m hnn_pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
     starts of a trained HNN and write ``bump.pt`` and ``bump.png`` beside the checkpoint."""
-    import argparse
     from pathlib import Path
 
-    from hnn_pl.cli import _refuse_other_model_class, cli_main
+    from hnn_pl.cli import cli_main
+    from hnn_pl.cli_errors import OneLineParser, check_checkpoint
     from hnn_pl.config_paths import resolve_config
+    from hnn_pl.safe_io import load_checkpoint, save_atomic
 
-    parser = argparse.ArgumentParser(prog="python -m hnn_pl bump", description=main.__doc__)
+    parser = OneLineParser(prog="python -m hnn_pl bump", description=main.__doc__)
     parser.add_argument("--config", required=True, help="the config the model was trained with")
     parser.add_argument("--ckpt_path", required=True, help="a checkpoint of an HNN model")
     parser.add_argument(
@@ -124,9 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="default: the checkpoint's run dir")
     args = parser.parse_args(argv)
     config = resolve_config(args.config)
+    ckpt = load_checkpoint(args.ckpt_path)
     cli = cli_main(["--config", config, "--trainer.logger=false"], run=False, save_config=False)
-    _refuse_other_model_class(args.ckpt_path, cli.config.get("model"))
-    state = torch.load(args.ckpt_path, weights_only=True, map_location="cpu")["state_dict"]
+    check_checkpoint(args.ckpt_path, ckpt, cli.config.get("model"))
+    state = ckpt.get("state_dict")
+    if not isinstance(state, dict):
+        raise ValueError(
+            f"checkpoint {args.ckpt_path}: holds no state_dict (not a Lightning checkpoint)"
+        )
     model, dm = cli.model, cli.datamodule
     model.load_state_dict(state)
     model.eval()
@@ -143,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     _, after = energy_bump(model, starts, delta, t)
     out = args.out or Path(args.ckpt_path).resolve().parent.parent
     out.mkdir(parents=True, exist_ok=True)
-    torch.save(
+    save_atomic(
         {"delta": delta, "before": before.as_dict(), "after": after.as_dict()}, out / "bump.pt"
     )
     _figure(before, after, delta, out / "bump.png")

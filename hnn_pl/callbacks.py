@@ -14,6 +14,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 
 from hnn_pl import rollouts, tasks
 from hnn_pl.protocols import Protocol
+from hnn_pl.safe_io import save_atomic
 
 
 def task_protocol(task: str, protocol: str, overrides: dict[str, Any] | None) -> Protocol:
@@ -150,7 +151,9 @@ class RolloutWriter(BasePredictionWriter):
     held-out: ``t (T,)``, ``y_true``/``y_pred (T, B, D)``, ``energy_true``/
     ``energy_pred (T, B)``, ``h_pred`` (HNN), ``metrics``; pixel also
     ``frames_true``/``frames_pred``, ``z_pred`` (``y`` are the probe's ``(q, p)``).
-    Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel). Always
+    Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel), each
+    row's ``status`` and ``t_stop`` (rows that stopped early are counted in the printed
+    line; the CLI refuses a file of starts that is not a finite ``(B, D)`` tensor). Always
     ``dydt``: the ``predict_step`` outputs. The file goes to the checkpoint's run
     directory (``…/version_N/``), else the logger's, else the working directory,
     and its path is printed.
@@ -230,9 +233,12 @@ class RolloutWriter(BasePredictionWriter):
         directory = self._directory(trainer)
         directory.mkdir(parents=True, exist_ok=True)
         self.path = directory / self.filename
-        torch.save(payload, self.path)
+        save_atomic(payload, self.path)
         shape = tuple(payload.get("y_pred", payload.get("y")).shape)
-        print(f"wrote rollouts {shape} (T, B, D) to {self.path}", flush=True)
+        status = payload.get("status")
+        stopped = int((status != 0).sum()) if status is not None else 0
+        note = f"; {stopped} of {len(status)} rows stopped early (see 'status')" if stopped else ""
+        print(f"wrote rollouts {shape} (T, B, D) to {self.path}{note}", flush=True)
 
 
 class TimeToAccuracy(Callback):

@@ -149,12 +149,12 @@ class HNNCLI(LightningCLI):
         """Checkpoints are saved atomically (a failed save never replaces a good
         ``last.ckpt``); ``predict``'s file of starts is checked before any data."""
         from hnn_pl.callbacks import RolloutWriter
-        from hnn_pl.safe_io import AtomicCheckpointIO
+        from hnn_pl.safe_io import atomic_checkpoint_io
 
         super().after_instantiate_classes()
         if getattr(self, "trainer", None) is None:
             return
-        self.trainer.strategy.checkpoint_io = AtomicCheckpointIO()
+        self.trainer.strategy.checkpoint_io = atomic_checkpoint_io()
         for callback in self.trainer.callbacks:
             if isinstance(callback, RolloutWriter) and callback.starts is not None:
                 check_starts(callback.starts, _start_width(self.model, self.datamodule))

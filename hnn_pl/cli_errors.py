@@ -16,6 +16,7 @@ imported when the config was parsed): see :func:`loaded_class`.
 
 from __future__ import annotations
 
+import argparse
 import difflib
 import inspect
 import math
@@ -30,6 +31,14 @@ SPECIAL_CKPT_PATHS = ("last", "best", "hpc")
 
 class CLIError(ValueError):
     """Bad command-line input: printed as one line, exit status 2."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse for the plain commands (``reproduce``, ``bump``, ``stress``): a bad
+    option is a :class:`CLIError`, printed by ``__main__`` as one line, no usage dump."""
+
+    def error(self, message: str):
+        raise CLIError(message)
 
 
 def did_you_mean(word: str, candidates: list[str] | set[str], prefix: str = "") -> str:

@@ -12,7 +12,6 @@ reference code, its own data set, so spreads over seeds include data variance.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -23,10 +22,14 @@ import time
 import traceback
 import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
+from typing import Any
 
 from hnn_pl import tasks
+from hnn_pl.cli_errors import OneLineParser
+from hnn_pl.safe_io import write_atomic
 
 
 def _job_args(
@@ -286,7 +289,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         for r in failures:
             last = r["error"].strip().splitlines()[-1]
             lines.append(f"- {r['task']} {r['model']} seed {r['seed']}: `{last}`")
-    path.write_text("\n".join(lines) + "\n")
+    write_atomic(path, ("\n".join(lines) + "\n").encode())
 
 
 def _new_run_dir(recipe: str) -> Path:
@@ -299,9 +302,7 @@ def _new_run_dir(recipe: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m hnn_pl reproduce", description=__doc__.split("\n\n")[0]
-    )
+    parser = OneLineParser(prog="python -m hnn_pl reproduce", description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--tasks",
         nargs="+",
@@ -342,7 +343,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--seeds and --max-steps must be >= 1, --workers >= 0")
     out = Path(args.out) if args.out else _new_run_dir(args.recipe) / "RESULTS.md"
     json_path = Path(args.json) if args.json else out.with_suffix(".json")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    for option, path in (("--out", out), ("--json", json_path)):
+        if path.is_dir():
+            parser.error(f"{option} {path} is a directory; name the file to write")
+        if path.parent.exists() and not path.parent.is_dir():
+            parser.error(f"{option} {path}: {path.parent} is not a directory")
     jobs = [
         (t, m, s)
         for t in args.tasks
@@ -380,7 +385,9 @@ def main(argv: list[str] | None = None) -> int:
         record["call"] = meta["id"]
         records.append(record)
         meta["total_s"] = time.perf_counter() - start
-        json_path.write_text(json.dumps({"meta": meta, "runs": records}, indent=1))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(json_path, json.dumps({"meta": meta, "runs": records}, indent=1).encode())
         write_markdown(records, out, meta)
         status = (
             f"train {record['train_s']:.1f} s, eval {record['eval_s']:.1f} s, test loss "
@@ -400,19 +407,77 @@ def main(argv: list[str] | None = None) -> int:
         f"data ready in {sum(data_s.values()):.1f} s",
         flush=True,
     )
+    try:
+        _run_jobs(jobs, args, done)
+    except (KeyboardInterrupt, BrokenProcessPool) as err:
+        what = (
+            "interrupted"
+            if isinstance(err, KeyboardInterrupt)
+            else ("a worker process died (killed, or out of memory)")
+        )
+        finished = len(records) - kept
+        where = f"kept in {json_path} and {out}" if finished else "nothing written"
+        print(
+            f"python -m hnn_pl reproduce: {what}: {finished} of {len(jobs)} runs finished, {where}",
+            file=sys.stderr,
+            flush=True,
+        )
+        return 130 if isinstance(err, KeyboardInterrupt) else 2
+    print(f"wrote {out} and {json_path} in {time.perf_counter() - start:.0f} s")
+    return 1 if any("error" in r for r in records) else 0
+
+
+def _run_jobs(jobs: list[tuple[str, str, int]], args: Any, done: Any) -> None:
+    """Run every job (in this process for ``--workers 0``), ``done(record)`` as each
+    finishes. Workers ignore Ctrl-C and die with this process (:func:`_die_with_parent`);
+    on Ctrl-C or a dead worker the others are killed before the error goes on."""
     if args.workers == 0:
         for job in jobs:
             done(run_one(*job, max_steps=args.max_steps, recipe=args.recipe))
-    else:
-        with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-            futures = [
-                pool.submit(run_one, *job, max_steps=args.max_steps, recipe=args.recipe)
-                for job in jobs
-            ]
-            for future in as_completed(futures):
-                done(future.result())
-    print(f"wrote {out} and {json_path} in {time.perf_counter() - start:.0f} s")
-    return 1 if any("error" in r for r in records) else 0
+        return
+    pool = ProcessPoolExecutor(
+        args.workers,
+        mp_context=get_context("spawn"),
+        initializer=_die_with_parent,
+        initargs=(os.getpid(),),
+    )
+    try:
+        futures = [
+            pool.submit(run_one, *job, max_steps=args.max_steps, recipe=args.recipe) for job in jobs
+        ]
+        for future in as_completed(futures):
+            done(future.result())
+    except BaseException:
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.kill()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _die_with_parent(parent: int) -> None:
+    """In a worker: ignore Ctrl-C (the parent stops the pool) and die with the parent,
+    by ``PR_SET_PDEATHSIG`` on Linux and a thread watching ``os.getppid()`` anywhere,
+    so a killed ``reproduce`` leaves no worker (nor, with its pipes closed, the
+    multiprocessing resource tracker) behind."""
+    import signal
+    import threading
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
+    if os.getppid() != parent:
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
 
 
 if __name__ == "__main__":

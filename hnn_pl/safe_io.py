@@ -3,7 +3,7 @@
 - :func:`load_checkpoint`: a checkpoint read as tensors and plain data only
   (``weights_only``); an empty, truncated, foreign or code-carrying file is one
   ``ValueError`` line naming the file, never torch's advice to load it unsafely.
-- :func:`write_atomic`, :func:`save_atomic`, :class:`AtomicCheckpointIO`: a file is
+- :func:`write_atomic`, :func:`save_atomic`, :func:`atomic_checkpoint_io`: a file is
   written to a temporary name beside it and renamed into place, so a failure (a full
   disk, Ctrl-C) leaves the previous file and no partial one; a full disk is
   ``OSError("no space left on <directory>")``.
@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from lightning.fabric.plugins.io.torch_io import TorchCheckpointIO
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
@@ -97,17 +96,22 @@ def save_atomic(obj: Any, path: str | os.PathLike) -> None:
     write_atomic(path, buffer.getbuffer())
 
 
-class AtomicCheckpointIO(TorchCheckpointIO):
-    """Lightning's checkpoint IO with atomic saves (:func:`save_atomic`): a failed save
-    (no space, an interrupt) never replaces a good ``last.ckpt`` with a partial one."""
+def atomic_checkpoint_io() -> Any:
+    """Lightning's ``TorchCheckpointIO`` with atomic saves (:func:`save_atomic`): a
+    failed save (no space, an interrupt) never replaces a good ``last.ckpt`` with a
+    partial one. (Lightning is imported here, not with this module.)"""
+    from lightning.fabric.plugins.io.torch_io import TorchCheckpointIO
 
-    def save_checkpoint(
-        self, checkpoint: dict[str, Any], path: Any, storage_options: Any = None
-    ) -> None:
-        if storage_options is not None:
-            raise TypeError(f"{type(self).__name__} takes no storage_options")
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        save_atomic(checkpoint, path)
+    class AtomicCheckpointIO(TorchCheckpointIO):
+        def save_checkpoint(
+            self, checkpoint: dict[str, Any], path: Any, storage_options: Any = None
+        ) -> None:
+            if storage_options is not None:
+                raise TypeError(f"{type(self).__name__} takes no storage_options")
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            save_atomic(checkpoint, path)
+
+    return AtomicCheckpointIO()
 
 
 def machine_memory() -> int:

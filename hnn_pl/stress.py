@@ -20,7 +20,6 @@ Writes a Markdown report with its figures (in ``<out stem>/``):
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import math
 import platform
@@ -31,6 +30,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from hnn_pl.cli_errors import OneLineParser
 from hnn_pl.integrate import Status, odeint
 from hnn_pl.systems import MassSpring, Pendulum, TwoBody
 
@@ -373,17 +373,129 @@ Integrate t ∈ [0, 20] (h = 0.05) and back: max |y_back − y_0|. The symmetric
 tolerance; rk4 and dopri5 only up to their error.
 
 {table(["system", "method", "float64", "float32"], rev_rows)}
-"""
+
+{faults_section()}"""
     doc = doc.replace("](long_runs.png)", f"]({figures.name}/long_runs.png)")
     doc = doc.replace("](trained.png)", f"]({figures.name}/trained.png)")
     out.write_text(doc)
     return doc
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m hnn_pl stress", description=__doc__.split("\n\n")[0]
+#: case, what happens, the test that holds it (tests/test_faults.py unless named)
+FAULTS = [
+    (
+        "a checkpoint naming a module (`_class_path`, `hnn_pl_model_class`) whose import "
+        "would run code",
+        "refused by comparing the names with the config's class as strings; nothing "
+        "it names is imported",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[hostile-class-path], "
+        "[hostile-model-class], test_checkpoint_hyperparameters_restore_only_plain_options",
+    ),
+    (
+        "a checkpoint that is empty, truncated, random bytes, a directory or missing",
+        "one line naming the file and the fault, before any data; never torch's "
+        "`weights_only=False` advice",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[zero-byte-checkpoint], "
+        "[truncated-checkpoint], [random-bytes-checkpoint], [checkpoint-is-a-directory], "
+        "[missing-checkpoint], [missing-resume-checkpoint]",
+    ),
+    (
+        "a checkpoint holding pickled objects",
+        "refused, naming the object; never unpickled",
+        "test_bad_input.py::test_a_checkpoint_that_is_more_than_weights_is_not_unpickled",
+    ),
+    (
+        "a start that is inf or NaN, or a row whose state becomes non-finite",
+        "`Status.DIVERGED` for that row in `odeint(return_status=True)` (all five "
+        "methods) and `hnn_pl.rollout`; the other rows are unchanged",
+        "test_a_non_finite_start_is_not_ok, test_a_row_that_overflows_is_not_ok, "
+        "test_rollout_of_a_model_from_an_infinite_start_is_not_ok",
+    ),
+    (
+        "predict `starts:` missing, not a tensor, of the wrong width, or not finite",
+        "one line before data or a version directory is made",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[starts-missing], "
+        "[starts-not-a-tensor], [starts-wrong-width], [starts-not-finite]",
+    ),
+    (
+        "a user system whose H is not `(B,)`, is NaN on sampled starts, or whose sampler "
+        "is not float64 `(n, 2·dof)`",
+        "one line naming the class and the fault, checked on the data's own starts "
+        "when the data module is built",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[system-h-shape], "
+        "[system-h-nan], [system-sampler-width], [system-sampler-dtype]",
+    ),
+    (
+        "a user system's `hamiltonian` edited in place",
+        "a new cache key (it covers the source file of a system outside the package)",
+        "test_the_cache_key_covers_a_user_system_s_source",
+    ),
+    (
+        "a full disk under the cache or the checkpoints",
+        "one line `no space left on <directory>`; the partial file removed; a good "
+        "`last.ckpt` kept (checkpoints are written to a temporary file and renamed)",
+        "test_a_full_disk_never_replaces_a_good_checkpoint, "
+        "test_a_full_disk_leaves_no_partial_cache, "
+        "test_fit_on_a_full_file_system_says_so_in_one_line (a 64 KB tmpfs where allowed)",
+    ),
+    (
+        "kill -9 of `reproduce`",
+        "its worker dies with it (PR_SET_PDEATHSIG, and a thread watching the parent), "
+        "so does the resource tracker",
+        "test_killing_reproduce_leaves_no_worker_or_resource_tracker",
+    ),
+    (
+        "Ctrl-C of `reproduce`, or a worker killed",
+        "one line: how many runs finished and where they are kept; exit 130 / 2",
+        "test_ctrl_c_and_a_dead_worker_end_in_one_line",
+    ),
+    (
+        "`reproduce --out` naming a directory",
+        "one line before any data is made",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[reproduce-out-is-a-directory]",
+    ),
+    (
+        "`max_steps: -5`, `--threads abc`, an empty config",
+        "one line each",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[max-steps-negative], "
+        "[threads-abc], [empty-config]",
+    ),
+    (
+        "a misspelled option, class path or config name",
+        "one line with the closest valid names (`did you mean hidden_dim?`), no usage dump",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[option-typo], "
+        "[trainer-option-typo], [class-path-typo], [short-class-typo], [config-name-typo]",
+    ),
+    (
+        "`n_trajectories: 1000000000`",
+        "refused in one line from an estimate of its memory against the machine's",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing[data-beyond-memory], "
+        "test_a_data_set_beyond_the_machine_s_memory_is_refused_before_sampling",
+    ),
+    (
+        "any other bad option value or config file",
+        "one line, exit 2, nothing written",
+        "test_bad_input.py",
+    ),
+]
+
+
+def faults_section() -> str:
+    """The "Faults and bad input" section of STABILITY.md, from :data:`FAULTS`."""
+    rows = [[case, what, f"`{held}`"] for case, what, held in FAULTS]
+    return (
+        "## 5. Faults and bad input\n\n"
+        "Every failure of a command ends with one line on stderr "
+        "(`python -m hnn_pl: error: …`) and exit status 2, with no traceback "
+        "(`HNN_PL_TRACEBACK=1` shows it) and nothing new on disk unless it is a "
+        "complete, valid file. Tests are in `tests/test_faults.py` unless named.\n\n"
+        + table(["case", "what happens", "the test that holds it"], rows)
+        + "\n"
     )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = OneLineParser(prog="python -m hnn_pl stress", description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--quick", action="store_true", help="10⁴ instead of 10⁶ steps; a short training"
     )
