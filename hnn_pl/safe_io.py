@@ -54,8 +54,9 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
         raise ValueError(f"checkpoint {path}: cannot be read ({reason})") from None
     except (EOFError, KeyError, ValueError, IndexError, TypeError, AttributeError):
         raise ValueError(f"checkpoint {path}: cannot be read (not a torch checkpoint)") from None
-    except OSError as err:
-        raise ValueError(f"checkpoint {path}: cannot be read ({err.strerror or err})") from None
+    except OSError as err:  # torch reports a cut zip archive as EINVAL
+        reason = "truncated or damaged" if err.errno == errno.EINVAL else err.strerror or err
+        raise ValueError(f"checkpoint {path}: cannot be read ({reason})") from None
     if not isinstance(ckpt, dict):
         raise ValueError(f"checkpoint {path}: holds a {type(ckpt).__name__}, not a checkpoint")
     return ckpt
