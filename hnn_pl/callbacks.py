@@ -9,7 +9,7 @@ from typing import Any
 
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
-from lightning.pytorch.callbacks import BasePredictionWriter
+from lightning.pytorch.callbacks import BasePredictionWriter, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from hnn_pl import rollouts, tasks
@@ -32,6 +32,31 @@ def task_protocol(task: str, protocol: str, overrides: dict[str, Any] | None) ->
         return p.replace(**(overrides or {}))
     except TypeError as e:
         raise ValueError(f"overrides {overrides}: {e}") from None
+
+
+class FinalCheckpoint(ModelCheckpoint):
+    """Lightning's ``ModelCheckpoint`` (default ``save_last=True``) that also saves at
+    the end of ``fit``, so ``last.ckpt`` is the model at the final step.
+
+    Lightning saves after validation or at an epoch's end; a fit that stops at
+    ``max_steps`` inside an epoch, or between two validations
+    (``check_val_every_n_epoch`` > 1), would otherwise leave ``last.ckpt`` at an
+    earlier step than the metrics logged at the end of the fit. No ``monitor``: the
+    validation split is the test split (there is no model selection), so the kept
+    checkpoint is the latest one (``epoch=E-step=S.ckpt``) and ``last.ckpt``.
+    The CLI adds one to every fit unless checkpointing is off or the config names
+    its own checkpoint callback. Arguments: Lightning's.
+    """
+
+    def __init__(self, *args: Any, save_last: bool | str | None = True, **kwargs: Any) -> None:
+        super().__init__(*args, save_last=save_last, **kwargs)
+
+    def on_train_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
+        if trainer.fast_dev_run or trainer.global_step == self._last_global_step_saved:
+            return super().on_train_end(trainer, pl_module)
+        candidates = self._monitor_candidates(trainer)
+        self._save_topk_checkpoint(trainer, candidates)
+        self._save_last_checkpoint(trainer, candidates)
 
 
 class RolloutCallback(Callback):
