@@ -267,8 +267,8 @@ def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) 
                 "--model.init_args.optimizer (adam, adamw, lbfgs), --model.init_args.lr, "
                 "--model.init_args.schedule (constant, cosine, onecycle)"
             )
-    subcommand = next((a for a in args if not a.startswith("-")), "fit")
-    config_file = "config.yaml" if subcommand == "fit" else f"config_{subcommand}.yaml"
+    evaluates = args[:1] if args[:1] in (["validate"], ["test"], ["predict"]) else []
+    config_file = f"config_{evaluates[0]}.yaml" if evaluates else "config.yaml"
     return HNNCLI(
         LightningModule,
         LightningDataModule,
