@@ -179,9 +179,13 @@ def test_test_and_predict_log_into_the_run_they_evaluate(run):
     config, tmp_path, cli = run
     log_dir = Path(cli.trainer.logger.log_dir)
     fit_config = (log_dir / "config.yaml").read_text()
-    test = cli_main(["test", "--config", config, f"--ckpt_path={log_dir.parent}", *_common(tmp_path)])
+    test = cli_main(
+        ["test", "--config", config, f"--ckpt_path={log_dir.parent}", *_common(tmp_path)]
+    )
     assert Path(test.trainer.logger.log_dir) == log_dir
-    predict = cli_main(["predict", "--config", config, f"--ckpt_path={log_dir}", *_common(tmp_path)])
+    predict = cli_main(
+        ["predict", "--config", config, f"--ckpt_path={log_dir}", *_common(tmp_path)]
+    )
     assert Path(predict.trainer.logger.log_dir) == log_dir
     assert sorted(p.name for p in log_dir.parent.iterdir()) == ["version_0"]
     assert (log_dir / "config.yaml").read_text() == fit_config
