@@ -104,17 +104,20 @@ class _LatentModel(nn.Module):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hnn_pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
+    """``hnn-pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
     starts of a trained HNN and write ``bump.pt`` and ``bump.png`` beside the checkpoint."""
     import argparse
     from pathlib import Path
 
-    from hnn_pl.cli import _refuse_other_model_class, cli_main
+    from hnn_pl.__main__ import program_name
+    from hnn_pl.cli import _refuse_other_model_class, cli_main, resolve_checkpoint
     from hnn_pl.config_paths import resolve_config
 
-    parser = argparse.ArgumentParser(prog="python -m hnn_pl bump", description=main.__doc__)
+    parser = argparse.ArgumentParser(prog=f"{program_name()} bump", description=main.__doc__)
     parser.add_argument("--config", required=True, help="the config the model was trained with")
-    parser.add_argument("--ckpt_path", required=True, help="a checkpoint of an HNN model")
+    parser.add_argument(
+        "--ckpt_path", required=True, help="a checkpoint of an HNN model, or its run (as fit's)"
+    )
     parser.add_argument(
         "--delta", type=float, default=None, help="ΔH_θ (default: 20 %% of its spread)"
     )
@@ -124,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="default: the checkpoint's run dir")
     args = parser.parse_args(argv)
     config = resolve_config(args.config)
+    args.ckpt_path = resolve_checkpoint(args.ckpt_path)
     cli = cli_main(["--config", config, "--trainer.logger=false"], run=False, save_config=False)
     _refuse_other_model_class(args.ckpt_path, cli.config.get("model"))
     state = torch.load(args.ckpt_path, weights_only=True, map_location="cpu")["state_dict"]

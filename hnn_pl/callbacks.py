@@ -175,10 +175,11 @@ class RolloutWriter(BasePredictionWriter):
     held-out: ``t (T,)``, ``y_true``/``y_pred (T, B, D)``, ``energy_true``/
     ``energy_pred (T, B)``, ``h_pred`` (HNN), ``metrics``; pixel also
     ``frames_true``/``frames_pred``, ``z_pred`` (``y`` are the probe's ``(q, p)``).
-    Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel). Always
-    ``dydt``: the ``predict_step`` outputs. The file goes to the checkpoint's run
-    directory (``…/version_N/``), else the logger's, else the working directory,
-    and its path is printed.
+    Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel). The
+    ``predict_step`` outputs (state models: ``dy/dt`` at the held-out states; pixel:
+    their latent codes) stay in ``trainer.predict_loop.predictions``, not in the
+    file. The file goes to the checkpoint's run directory (``…/version_N/``), else
+    the logger's, else the working directory, and its path is printed.
 
     Args:
         task, protocol, overrides: the protocol, as :class:`RolloutCallback`.
@@ -247,9 +248,6 @@ class RolloutWriter(BasePredictionWriter):
                 "frames_pred": r.x_pred,
                 "z_pred": r.z_pred,
             }
-        flat = predictions[0] if predictions and isinstance(predictions[0], list) else predictions
-        if flat:
-            payload["dydt"] = torch.cat([p.detach().cpu() for p in flat])
         payload = {k: v.cpu() if torch.is_tensor(v) else v for k, v in payload.items()}
         payload = {k: v for k, v in payload.items() if v is not None}
         directory = self._directory(trainer)

@@ -381,8 +381,10 @@ tolerance; rk4 and dopri5 only up to their error.
 
 
 def main(argv: list[str] | None = None) -> int:
+    from hnn_pl.__main__ import program_name
+
     parser = argparse.ArgumentParser(
-        prog="python -m hnn_pl stress", description=__doc__.split("\n\n")[0]
+        prog=f"{program_name()} stress", description=__doc__.split("\n\n")[0]
     )
     parser.add_argument(
         "--quick", action="store_true", help="10⁴ instead of 10⁶ steps; a short training"

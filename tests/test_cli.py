@@ -205,3 +205,22 @@ def test_checkpoint_round_trip_rolls_out_the_same(tmp_path):
     torch.testing.assert_close(
         loaded.rollout(y0, t, method="rk4"), model.rollout(y0, t, method="rk4")
     )
+
+
+@pytest.mark.parametrize("command", ["reproduce", "bump", "stress"])
+def test_subcommand_help_names_the_program(command, capsys, monkeypatch):
+    from hnn_pl.__main__ import main
+
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/hnn-pl", command, "--help"])
+    with pytest.raises(SystemExit):
+        main()
+    assert capsys.readouterr().out.startswith(f"usage: hnn-pl {command}")
+
+
+def test_top_level_help_says_what_predict_writes(capsys, monkeypatch):
+    from hnn_pl.__main__ import main
+
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/hnn-pl"])
+    main(["--help"])
+    predict = capsys.readouterr().out.split("\n  predict ")[1].split("\n  reproduce")[0]
+    assert "rollouts.pt" in predict and "dy/dt" not in predict
