@@ -173,19 +173,19 @@ def _figure(before: Trajectories, after: Trajectories, delta: float, path) -> No
                 axes[row, col].axis("off")
             axes[row, 0].set_title(label, fontsize=8, loc="left")
     else:
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
-        for traj, style, label in (
-            (before, "-", "original"),
-            (after, "--", f"bumped by {delta:.3g}"),
-        ):
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.4))
+        for traj, style in ((before, "-"), (after, "--")):
             k = traj.y.shape[-1] // 2
             for b in range(traj.y.shape[1]):
-                ax1.plot(traj.y[:, b, 0], traj.y[:, b, k], style, label=label if b == 0 else None)
-                ax2.plot(traj.t, traj.h[:, b], style, label=label if b == 0 else None)
+                ax1.plot(traj.y[:, b, 0], traj.y[:, b, k], style, color=f"C{b % 10}")
+                ax2.plot(traj.t, traj.h[:, b], style, color=f"C{b % 10}")
         ax1.set(xlabel="q", ylabel="p", title="learned dynamics before and after the bump")
         ax2.set(xlabel="t", ylabel="H_θ", title="H_θ: moved by ΔH, then kept")
-        ax1.legend()
-        ax2.legend()
-    fig.tight_layout()
+        styles = [
+            plt.Line2D([], [], color="k", ls="-", label="original (one colour per start)"),
+            plt.Line2D([], [], color="k", ls="--", label=f"bumped by ΔH_θ = {delta:.3g}"),
+        ]
+        fig.legend(handles=styles, loc="lower center", ncol=2, frameon=False)
+    fig.tight_layout(rect=(0, 0 if before.frames is not None else 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)

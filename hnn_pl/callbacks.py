@@ -119,8 +119,7 @@ class RolloutCallback(Callback):
         for tag, fig in plotting.figures(r).items():
             writer.add_figure(tag, fig, step)
         if r.is_pixel:
-            image = plotting.frames_image(r)
-            writer.add_image("rollout/frames", image, step, dataformats="CHW")
+            writer.add_figure("rollout/frames", plotting.frames_figure(r), step)
 
     def _log_during_fit(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if not (trainer.is_global_zero and trainer.loggers):
