@@ -22,15 +22,19 @@ SHORTER = {"hnn-pl fit --model HNN ": "--trainer.max_steps 5"}
 #: Ctrl-C: it passes once it says where it serves the logs
 PRELUDE = r"""
 set -eo pipefail
+source() { { set +x; } 2>/dev/null; builtin source "$@"; set -x; }
 make() {
-  if [ "${1:-}" = test ]; then echo "make test: the suite running this"; return 0; fi
+  { set +x; } 2>/dev/null
+  if [ "${1:-}" = test ]; then echo "make test: the suite running this"; set -x; return 0; fi
   command make "$@"
+  set -x
 }
 tensorboard() {
+  { set +x; } 2>/dev/null
   command tensorboard "$@" > tensorboard.log 2>&1 &
   local pid=$!
   for _ in $(seq 120); do
-    if grep -q "http://" tensorboard.log; then kill $pid; wait $pid || true; return 0; fi
+    if grep -q "http://" tensorboard.log; then kill $pid; wait $pid || true; set -x; return 0; fi
     if ! kill -0 $pid 2>/dev/null; then cat tensorboard.log >&2; return 1; fi
     sleep 0.5
   done
