@@ -1,12 +1,14 @@
 """hnn_pl: Hamiltonian Neural Networks in PyTorch Lightning.
 
-``from hnn_pl import HNN, Baseline, odeint``. Names are imported on first use, so
-``import hnn_pl`` (and ``python -m hnn_pl --help``) does not load Lightning.
+``from hnn_pl import HNN, Baseline, odeint``. Names and submodules
+(``hnn_pl.bump.energy_bump``) are imported on first use, so ``import hnn_pl`` (and
+``python -m hnn_pl --help``) does not load Lightning.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 
 __version__ = "0.1.0"
 
@@ -41,6 +43,8 @@ def __getattr__(name: str):
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
+    if not name.startswith("_") and importlib.util.find_spec(f"hnn_pl.{name}") is not None:
+        return importlib.import_module(f"hnn_pl.{name}")  # hnn_pl.bump.energy_bump(...)
     raise AttributeError(f"module 'hnn_pl' has no attribute {name!r}")
 
 

@@ -20,15 +20,18 @@ Hamiltonian Neural Networks (Greydanus et al., 2019) with PyTorch Lightning.
 commands:
   fit        train a model:        {prog} fit --config spring.yaml
   validate   validate a checkpoint: ... validate --config spring.yaml --ckpt_path PATH
-  test       test a checkpoint (losses and rollout metrics)
-  predict    predicted dy/dt on the held-out states
+  test       test a checkpoint (losses and rollout metrics), logged into its run
+  predict    roll a checkpoint out from the held-out (or your) starts: true and
+             predicted states, energies, H_θ, metrics -> rollouts.pt in its run
   reproduce  train and evaluate every task x model x seed, write RESULTS.md
              ({prog} reproduce --help)
   stress     numerical stability of integrators and trained models, write
              STABILITY.md ({prog} stress --help)
   bump       change a trained HNN's learned energy and roll out ({prog} bump --help)
 
-A --config that is not a file is looked up in the bundled configs (".yaml" optional).
+A --config that is not a file is looked up in the bundled configs (".yaml" optional);
+--ckpt_path takes a checkpoint, a run (lightning_logs/spring_fast_hnn/version_0) or a
+run name's directory (lightning_logs/spring_fast_hnn: its latest run).
 Classes go by their short names: {prog} fit --model HNN --data SimulatedData
 --data.system MassSpring; `--model.help HNN` lists a class's options.
 `{prog} <command> --help` lists every option of a command; --version prints the version.

@@ -104,18 +104,21 @@ class _LatentModel(nn.Module):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hnn_pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
+    """``hnn-pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
     starts of a trained HNN and write ``bump.pt`` and ``bump.png`` beside the checkpoint."""
     from pathlib import Path
 
-    from hnn_pl.cli import cli_main
+    from hnn_pl.__main__ import program_name
+    from hnn_pl.cli import cli_main, resolve_checkpoint
     from hnn_pl.cli_errors import OneLineParser, check_checkpoint
     from hnn_pl.config_paths import resolve_config
     from hnn_pl.safe_io import load_checkpoint, save_atomic
 
-    parser = OneLineParser(prog="python -m hnn_pl bump", description=main.__doc__)
+    parser = OneLineParser(prog=f"{program_name()} bump", description=main.__doc__)
     parser.add_argument("--config", required=True, help="the config the model was trained with")
-    parser.add_argument("--ckpt_path", required=True, help="a checkpoint of an HNN model")
+    parser.add_argument(
+        "--ckpt_path", required=True, help="a checkpoint of an HNN model, or its run (as fit's)"
+    )
     parser.add_argument(
         "--delta", type=float, default=None, help="ΔH_θ (default: 20 %% of its spread)"
     )
@@ -125,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="default: the checkpoint's run dir")
     args = parser.parse_args(argv)
     config = resolve_config(args.config)
+    args.ckpt_path = resolve_checkpoint(args.ckpt_path)
     ckpt = load_checkpoint(args.ckpt_path)
     cli = cli_main(["--config", config, "--trainer.logger=false"], run=False, save_config=False)
     check_checkpoint(args.ckpt_path, ckpt, cli.config.get("model"))
@@ -175,19 +179,19 @@ def _figure(before: Trajectories, after: Trajectories, delta: float, path) -> No
                 axes[row, col].axis("off")
             axes[row, 0].set_title(label, fontsize=8, loc="left")
     else:
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
-        for traj, style, label in (
-            (before, "-", "original"),
-            (after, "--", f"bumped by {delta:.3g}"),
-        ):
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.4))
+        for traj, style in ((before, "-"), (after, "--")):
             k = traj.y.shape[-1] // 2
             for b in range(traj.y.shape[1]):
-                ax1.plot(traj.y[:, b, 0], traj.y[:, b, k], style, label=label if b == 0 else None)
-                ax2.plot(traj.t, traj.h[:, b], style, label=label if b == 0 else None)
+                ax1.plot(traj.y[:, b, 0], traj.y[:, b, k], style, color=f"C{b % 10}")
+                ax2.plot(traj.t, traj.h[:, b], style, color=f"C{b % 10}")
         ax1.set(xlabel="q", ylabel="p", title="learned dynamics before and after the bump")
         ax2.set(xlabel="t", ylabel="H_θ", title="H_θ: moved by ΔH, then kept")
-        ax1.legend()
-        ax2.legend()
-    fig.tight_layout()
+        styles = [
+            plt.Line2D([], [], color="k", ls="-", label="original (one colour per start)"),
+            plt.Line2D([], [], color="k", ls="--", label=f"bumped by ΔH_θ = {delta:.3g}"),
+        ]
+        fig.legend(handles=styles, loc="lower center", ncol=2, frameon=False)
+    fig.tight_layout(rect=(0, 0 if before.frames is not None else 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)

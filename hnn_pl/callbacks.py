@@ -9,7 +9,7 @@ from typing import Any
 
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
-from lightning.pytorch.callbacks import BasePredictionWriter
+from lightning.pytorch.callbacks import BasePredictionWriter, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from hnn_pl import rollouts, tasks
@@ -33,6 +33,31 @@ def task_protocol(task: str, protocol: str, overrides: dict[str, Any] | None) ->
         return p.replace(**(overrides or {}))
     except TypeError as e:
         raise ValueError(f"overrides {overrides}: {e}") from None
+
+
+class FinalCheckpoint(ModelCheckpoint):
+    """Lightning's ``ModelCheckpoint`` (default ``save_last=True``) that also saves at
+    the end of ``fit``, so ``last.ckpt`` is the model at the final step.
+
+    Lightning saves after validation or at an epoch's end; a fit that stops at
+    ``max_steps`` inside an epoch, or between two validations
+    (``check_val_every_n_epoch`` > 1), would otherwise leave ``last.ckpt`` at an
+    earlier step than the metrics logged at the end of the fit. No ``monitor``: the
+    validation split is the test split (there is no model selection), so the kept
+    checkpoint is the latest one (``epoch=E-step=S.ckpt``) and ``last.ckpt``.
+    The CLI adds one to every fit unless checkpointing is off or the config names
+    its own checkpoint callback. Arguments: Lightning's.
+    """
+
+    def __init__(self, *args: Any, save_last: bool | str | None = True, **kwargs: Any) -> None:
+        super().__init__(*args, save_last=save_last, **kwargs)
+
+    def on_train_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
+        if trainer.fast_dev_run or trainer.global_step == self._last_global_step_saved:
+            return super().on_train_end(trainer, pl_module)
+        candidates = self._monitor_candidates(trainer)
+        self._save_topk_checkpoint(trainer, candidates)
+        self._save_last_checkpoint(trainer, candidates)
 
 
 class RolloutCallback(Callback):
@@ -95,8 +120,7 @@ class RolloutCallback(Callback):
         for tag, fig in plotting.figures(r).items():
             writer.add_figure(tag, fig, step)
         if r.is_pixel:
-            image = plotting.frames_image(r)
-            writer.add_image("rollout/frames", image, step, dataformats="CHW")
+            writer.add_figure("rollout/frames", plotting.frames_figure(r), step)
 
     def _log_during_fit(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if not (trainer.is_global_zero and trainer.loggers):
@@ -153,10 +177,11 @@ class RolloutWriter(BasePredictionWriter):
     ``frames_true``/``frames_pred``, ``z_pred`` (``y`` are the probe's ``(q, p)``).
     Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel), each
     row's ``status`` and ``t_stop`` (rows that stopped early are counted in the printed
-    line; the CLI refuses a file of starts that is not a finite ``(B, D)`` tensor). Always
-    ``dydt``: the ``predict_step`` outputs. The file goes to the checkpoint's run
-    directory (``…/version_N/``), else the logger's, else the working directory,
-    and its path is printed.
+    line; the CLI refuses a file of starts that is not a finite ``(B, D)`` tensor). The
+    ``predict_step`` outputs (state models: ``dy/dt`` at the held-out states; pixel:
+    their latent codes) stay in ``trainer.predict_loop.predictions``, not in the
+    file. The file goes to the checkpoint's run directory (``…/version_N/``), else
+    the logger's, else the working directory, and its path is printed.
 
     Args:
         task, protocol, overrides: the protocol, as :class:`RolloutCallback`.
@@ -225,9 +250,6 @@ class RolloutWriter(BasePredictionWriter):
                 "frames_pred": r.x_pred,
                 "z_pred": r.z_pred,
             }
-        flat = predictions[0] if predictions and isinstance(predictions[0], list) else predictions
-        if flat:
-            payload["dydt"] = torch.cat([p.detach().cpu() for p in flat])
         payload = {k: v.cpu() if torch.is_tensor(v) else v for k, v in payload.items()}
         payload = {k: v for k, v in payload.items() if v is not None}
         directory = self._directory(trainer)

@@ -5,13 +5,23 @@ Classes are given by their short names (``--model HNN --data SimulatedData
 resolves a short name among the subclasses imported when the parser is built, so this
 module imports every model, data module and system (only the full commands load this
 module; ``python -m hnn_pl --help`` does not).
+
+Runs without a config get :data:`TRAINER_DEFAULTS` (a config's trainer block overrides
+each key). ``--ckpt_path`` takes a checkpoint, a run directory (``…/version_N``) or a
+run name's directory (``lightning_logs/spring_fast_hnn``: its latest run), see
+:func:`resolve_checkpoint`; ``validate``, ``test`` and ``predict`` log into the run
+they evaluate. The optimiser and its schedule are the model's recipe
+(``--model.init_args.optimizer``, ``lr``, ``schedule``): LightningCLI's
+``--optimizer``/``--lr_scheduler`` are refused, not silently overridden.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import re
 import warnings
+from pathlib import Path
 from typing import Any
 
 from lightning.pytorch import LightningDataModule, LightningModule
@@ -26,6 +36,7 @@ from lightning.pytorch.cli import (
 from hnn_pl import data, models, systems
 from hnn_pl.__main__ import program_name
 from hnn_pl.cli_errors import (
+    SPECIAL_CKPT_PATHS,
     CLIError,
     check_checkpoint,
     check_ckpt_path,
@@ -40,6 +51,26 @@ from hnn_pl.safe_io import load_checkpoint
 
 #: the packages whose classes the CLI knows by their short names
 REGISTERED = (models, data, systems)
+
+#: trainer settings of a run that names its classes instead of a config (the configs
+#: set these too): the paper's 2000 steps, logged under a name from the classes
+#: (``--model HNN --data.system MassSpring``: ``lightning_logs/mass_spring_hnn``)
+TRAINER_DEFAULTS: dict[str, Any] = {
+    "max_steps": 2000,
+    "max_epochs": -1,
+    "accelerator": "cpu",
+    "devices": 1,
+    "inference_mode": False,
+    "enable_model_summary": False,
+    "logger": {
+        "class_path": "hnn_pl.loggers.TensorBoardLogger",
+        "init_args": {"save_dir": "lightning_logs", "name": None},
+    },
+}
+
+#: LightningCLI's optimiser options, which would replace the recipe's optimiser while
+#: the hparams still record the recipe's
+_NOT_RECIPE = ("--optimizer", "--lr_scheduler")
 
 
 class _DropTips(logging.Filter):
@@ -116,6 +147,8 @@ class HNNCLI(LightningCLI):
         sub = self.config.get("subcommand")
         config = self.config.get(sub) if sub else None
         ckpt_path = config.get("ckpt_path") if config else None
+        if ckpt_path and ckpt_path not in SPECIAL_CKPT_PATHS:
+            config["ckpt_path"] = ckpt_path = resolve_checkpoint(ckpt_path)
         if not check_ckpt_path(ckpt_path):
             return
         ckpt = load_checkpoint(ckpt_path)
@@ -134,6 +167,77 @@ class HNNCLI(LightningCLI):
         _refuse_explicit_input_dim(config.get("model"))
         if "weights_only" in config and config["weights_only"] is None:
             config["weights_only"] = True  # a checkpoint cannot run code when loaded
+        logger = config.get("trainer", {}).get("logger")
+        init_args = getattr(logger, "init_args", None)
+        if init_args is None or not {"save_dir", "name", "version"} <= set(vars(init_args)):
+            return
+        if init_args.name is None:
+            init_args.name = _run_name(config.get("model"), config.get("data"))
+        run = _run_directory(config.get("ckpt_path"))
+        if self.subcommand != "fit" and run is not None:
+            init_args.save_dir, init_args.name = str(run.parent.parent), run.parent.name
+            init_args.version = run.name
+
+    def instantiate_trainer(self, **kwargs: Any):
+        """The trainer, with a :class:`~hnn_pl.callbacks.FinalCheckpoint` unless
+        checkpointing is off or the config names a checkpoint callback."""
+        from lightning.pytorch.callbacks import ModelCheckpoint
+
+        from hnn_pl.callbacks import FinalCheckpoint
+
+        config = self._get(self.config_init, "trainer", default={})
+        callbacks = list(kwargs.get("callbacks", config.get("callbacks")) or [])
+        wanted = config.get("enable_checkpointing") is not False
+        if wanted and not any(isinstance(c, ModelCheckpoint) for c in callbacks):
+            kwargs["callbacks"] = [*callbacks, FinalCheckpoint()]
+        return super().instantiate_trainer(**kwargs)
+
+
+def resolve_checkpoint(path: str) -> str:
+    """The checkpoint a ``--ckpt_path`` names: a file as given; a run directory
+    (``…/version_N``) or its ``checkpoints/``: its ``last.ckpt``; a directory of runs
+    (``lightning_logs/spring_fast_hnn``): the ``last.ckpt`` of its highest
+    ``version_N``. URLs and Lightning's ``last``/``best``/``hpc`` pass unchanged.
+
+    Raises:
+        FileNotFoundError: nothing there, naming what was looked for.
+    """
+    if "://" in path or path in SPECIAL_CKPT_PATHS or Path(path).is_file():
+        return path
+    p = Path(path)
+    if not p.is_dir():
+        raise FileNotFoundError(f"checkpoint {path}: no such file or run directory")
+    for last in (p / "last.ckpt", p / "checkpoints" / "last.ckpt"):
+        if last.is_file():
+            return str(last)
+    runs = [d for d in p.glob("version_*") if (d / "checkpoints" / "last.ckpt").is_file()]
+    if not runs:
+        raise FileNotFoundError(
+            f"checkpoint {path}: a directory without checkpoints/last.ckpt or runs "
+            "version_N/ holding one"
+        )
+    number = lambda d: int(d.name[8:]) if d.name[8:].isdigit() else -1  # noqa: E731
+    latest = max(runs, key=lambda d: (number(d), d.stat().st_mtime))
+    return str(latest / "checkpoints" / "last.ckpt")
+
+
+def _run_directory(ckpt_path: str | None) -> Path | None:
+    """``…/name/version_N`` of a checkpoint in ``…/name/version_N/checkpoints/``."""
+    if not ckpt_path or "://" in ckpt_path or not Path(ckpt_path).is_file():
+        return None
+    parent = Path(ckpt_path).resolve().parent
+    return parent.parent if parent.name == "checkpoints" else None
+
+
+def _snake(name: str) -> str:
+    return re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name).lower()
+
+
+def _run_name(model: Any, data: Any) -> str:
+    """``<system or data class>_<model class>`` in snake case, e.g. ``mass_spring_hnn``."""
+    system = getattr(getattr(data, "init_args", None), "system", None)
+    named = [getattr(x, "class_path", None) for x in (system or data, model)]
+    return "_".join(_snake(p.rsplit(".", 1)[-1]) for p in named if p) or "default"
 
     def instantiate_classes(self) -> None:
         """Build the classes; Lightning's refusals of trainer options (``max_steps:
@@ -199,6 +303,16 @@ def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) 
 
     quiet_lightning()
     args = resolve_config_args(sys.argv[1:] if args is None else list(args))
+    for arg in args:
+        option = arg.split("=", 1)[0]
+        if option.split(".", 1)[0] in _NOT_RECIPE:
+            raise ValueError(
+                f"{option}: the optimiser and its schedule are the model's recipe; set "
+                "--model.init_args.optimizer (adam, adamw, lbfgs), --model.init_args.lr, "
+                "--model.init_args.schedule (constant, cosine, onecycle)"
+            )
+    evaluates = args[:1] if args[:1] in (["validate"], ["test"], ["predict"]) else []
+    config_file = f"config_{evaluates[0]}.yaml" if evaluates else "config.yaml"
     return HNNCLI(
         LightningModule,
         LightningDataModule,
@@ -206,7 +320,9 @@ def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) 
         subclass_mode_data=True,
         args=args,
         run=run,
-        save_config_kwargs={"overwrite": True},
+        save_config_kwargs={"overwrite": True, "config_filename": config_file},
         save_config_callback=SaveConfigCallback if save_config else None,
         parser_class=HNNArgumentParser,
+        trainer_defaults=TRAINER_DEFAULTS,
+        auto_configure_optimizers=False,
     )

@@ -1,7 +1,9 @@
-"""A TensorBoard logger whose HParams tab shows the rollout metrics, not ``hp_metric = -1``."""
+"""A TensorBoard logger whose HParams tab shows every hyperparameter of a run and its
+rollout metrics, not ``hp_metric = -1``."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from lightning.fabric.utilities.logger import _convert_params, _flatten_dict
@@ -10,15 +12,19 @@ from lightning.pytorch.utilities.rank_zero import rank_zero_only
 
 
 class TensorBoardLogger(_TensorBoardLogger):
-    """Lightning's ``TensorBoardLogger`` that registers ``hp_metrics`` with the hparams.
+    """Lightning's ``TensorBoardLogger`` writing *one* hparams summary per run.
 
-    Lightning's logger registers a placeholder ``hp_metric`` (logged as -1) unless a
-    metric value is passed with the hyperparameters, which at the start of a fit
-    does not exist yet. This one writes the hparams summary with the metric *tags*
-    ``hp_metrics`` (default ``rollout/energy_mse``): TensorBoard's HParams tab then
-    reads their values from the scalars the rollout callback logs, and no fake
-    value is written. Runs are told apart by ``name`` (e.g. ``spring_hnn``): logs go
-    to ``save_dir/name/version_N``.
+    Lightning writes an hparams summary at every ``log_hyperparams`` call, and
+    TensorBoard's HParams tab reads only the first: the rollout callback's (model
+    class, system, protocol) hid the model's and the data's (``lr``, ``hidden_dim``,
+    ``schedule``, ``noise_std``, …). This logger collects every call's params and
+    writes a single summary holding all of them when the run first saves or logs a
+    metric (Lightning logs all hyperparameters before either). The summary registers
+    the metric *tags* ``hp_metrics`` (default ``rollout/energy_mse``): TensorBoard
+    reads their values from the scalars the rollout callback logs, and no placeholder
+    ``hp_metric`` is written. A run that already has its summary (``test`` or
+    ``predict`` logging into the run they evaluate) gets no second one. Runs are told
+    apart by ``name`` (e.g. ``spring_hnn``): logs go to ``save_dir/name/version_N``.
 
     Args:
         save_dir, name, version: as Lightning's logger.
@@ -37,17 +43,27 @@ class TensorBoardLogger(_TensorBoardLogger):
         kwargs["default_hp_metric"] = False
         super().__init__(save_dir, name=name, version=version, **kwargs)
         self.hp_metrics = tuple(hp_metrics)
+        self._hparams_summary_done = False
 
-    @rank_zero_only
-    def log_hyperparams(self, params: Any, metrics: dict[str, Any] | None = None) -> None:
-        """Store ``params``; with ``metrics=None`` register :attr:`hp_metrics` as tags."""
-        if metrics is not None or not self.hp_metrics:
-            super().log_hyperparams(params, metrics)
+    def _write_hparams_summary(self) -> None:
+        if self._hparams_summary_done or not self.hparams:
             return
-        super().log_hyperparams(params)
+        self._hparams_summary_done = True
+        if Path(self.log_dir, self.NAME_HPARAMS_FILE).is_file() or not self.hp_metrics:
+            return
         from torch.utils.tensorboard.summary import hparams
 
         flat = self._sanitize_params(_flatten_dict(_convert_params(self.hparams)))
         writer = self.experiment.file_writer
         for summary in hparams(flat, dict.fromkeys(self.hp_metrics, 0.0)):
             writer.add_summary(summary)
+
+    @rank_zero_only
+    def log_metrics(self, metrics: dict[str, Any], step: int | None = None) -> None:
+        self._write_hparams_summary()
+        super().log_metrics(metrics, step)
+
+    @rank_zero_only
+    def save(self) -> None:
+        self._write_hparams_summary()
+        super().save()

@@ -59,7 +59,16 @@ def energy_over_time(r: Rollout, max_lines: int = 4):
     axes[0, 0].set(xlabel="t", ylabel="energy", title="energy: true (solid), predicted (dashed)")
     if r.h_pred is not None:
         axes[0, 1].set(xlabel="t", ylabel="H_θ", title="learned H_θ along the rollout")
-    fig.tight_layout()
+    if r.is_pixel:
+        dt = float(r.t[1] - r.t[0]) if len(r.t) > 1 else float("nan")
+        note = (
+            f"The true paths are gym's semi-implicit Euler steps (dt = {dt:.3g}), which do not "
+            "conserve the energy exactly: it oscillates along them."
+        )
+        fig.text(0.01, 0.01, note, fontsize=7, wrap=True)
+        fig.tight_layout(rect=(0, 0.07, 1, 1))
+    else:
+        fig.tight_layout()
     return fig
 
 
@@ -78,6 +87,27 @@ def figures(r: Rollout) -> dict:
     latent plane) and ``rollout/energy``."""
     portrait = latent_portrait(r) if r.is_pixel else phase_portrait(r)
     return {"rollout/phase_portrait": portrait, "rollout/energy": energy_over_time(r)}
+
+
+def frames_figure(r: Rollout, trajectory: int = 0, n_strip: int = 10):
+    """:func:`frames_image` with its rows (true, predicted) and times labelled."""
+    plt = _pyplot()
+    image = frames_image(r, trajectory, n_strip)[0]
+    height, width = image.shape
+    n = min(n_strip, r.x_true.shape[0])
+    idx = torch.linspace(0, r.x_true.shape[0] - 1, n).round().long()
+    column = (width + 1) / n
+    row = (height - 2) / 2
+    fig, ax = plt.subplots(figsize=(width / 80 + 1.2, height / 80 + 1.0), dpi=80)
+    ax.imshow(image.numpy(), cmap="gray", vmin=0, vmax=255)
+    ax.set_xticks([column * (i + 0.5) - 0.5 for i in range(n)])
+    ax.set_xticklabels([f"{float(r.t[k]):.2f}" for k in idx])
+    ax.set_yticks([row / 2, row + 2 + row / 2])
+    ax.set_yticklabels(["true", "predicted"])
+    ax.set_xlabel("t")
+    ax.set_title(f"held-out trajectory {trajectory}: true frames and decoded rollout")
+    fig.tight_layout()
+    return fig
 
 
 def frames_image(r: Rollout, trajectory: int = 0, n_strip: int = 10) -> Tensor:

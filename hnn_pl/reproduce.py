@@ -21,8 +21,10 @@ import sys
 import time
 import traceback
 import uuid
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -61,6 +63,12 @@ def run_one(
         (``train_s``, ``eval_s``), or ``error`` with the traceback.
     """
     record = {"task": task, "model": model, "seed": seed}
+    with _quiet_lightning_runs():
+        return _run_one(record, max_steps, recipe, overrides)
+
+
+def _run_one(record: dict, max_steps: int | None, recipe: str, overrides: tuple) -> dict:
+    task, model, seed = record["task"], record["model"], record["seed"]
     try:
         import torch
 
@@ -89,6 +97,42 @@ def run_one(
     except Exception:  # noqa: BLE001 - one failed run must not lose the others
         record["error"] = traceback.format_exc()
     return record
+
+
+@contextmanager
+def _quiet_lightning_runs() -> Iterator[None]:
+    """Lightning's per-run lines ("Seed set to", "GPU available", "`Trainer.fit`
+    stopped") off inside: the progress lines are reproduce's own. Warnings stay."""
+    import logging
+
+    import lightning.pytorch  # noqa: F401 - it sets its loggers' level on import
+
+    loggers = [logging.getLogger(name) for name in ("lightning.pytorch", "lightning.fabric")]
+    levels = [log.level for log in loggers]
+    for log in loggers:
+        log.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        for log, level in zip(loggers, levels):
+            log.setLevel(level)
+
+
+def _started(job: tuple[str, str, int], k: int, n: int, **kwargs) -> dict:
+    """:func:`run_one` after printing ``[start k/n] task model seed s``."""
+    print(f"[start {k}/{n}] {job[0]} {job[1]} seed {job[2]}", flush=True)
+    return run_one(*job, **kwargs)
+
+
+def _remaining(jobs: list, done: list, elapsed: float) -> str:
+    """``, ~T s left``: the elapsed time scaled by the remaining runs' share of the
+    tasks' relative costs (:attr:`hnn_pl.tasks.Task.cost`)."""
+    cost = {j: tasks.get(j[0]).cost for j in jobs}
+    spent = sum(cost[j] for j in done)
+    if not spent:
+        return ""
+    left = elapsed * (sum(cost.values()) - spent) / spent
+    return f", ~{left:.0f} s left" if left > 0 else ""
 
 
 def _prepare_data(jobs: list[tuple[str, str, int]], recipe: str) -> dict[str, float]:
@@ -302,7 +346,9 @@ def _new_run_dir(recipe: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = OneLineParser(prog="python -m hnn_pl reproduce", description=__doc__.split("\n\n")[0])
+    from hnn_pl.__main__ import program_name
+
+    parser = OneLineParser(prog=f"{program_name()} reproduce", description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--tasks",
         nargs="+",
@@ -359,7 +405,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"no task of {args.tasks} has a model of {args.models}")
     jobs.sort(key=lambda j: (-tasks.get(j[0]).cost, j[2], j[1]))  # longest first
     start = time.perf_counter()
-    data_s = _prepare_data(jobs, args.recipe)
+    with _quiet_lightning_runs():
+        data_s = _prepare_data(jobs, args.recipe)
     records: list[dict] = []
     if args.merge and json_path.exists():
         redo = set(jobs)
@@ -373,7 +420,7 @@ def main(argv: list[str] | None = None) -> int:
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}",
-        "command": "`python -m hnn_pl reproduce " + " ".join(argv or sys.argv[2:]) + "`",
+        "command": f"`{parser.prog} " + " ".join(argv or sys.argv[2:]) + "`",
         "workers": max(args.workers, 1),
         "recipe": args.recipe,
         "data_s": data_s,
@@ -381,7 +428,10 @@ def main(argv: list[str] | None = None) -> int:
     if kept:
         meta["earlier_calls"] = earlier
 
+    finished: list[tuple[str, str, int]] = []
+
     def done(record: dict) -> None:
+        finished.append((record["task"], record["model"], record["seed"]))
         record["call"] = meta["id"]
         records.append(record)
         meta["total_s"] = time.perf_counter() - start
@@ -396,9 +446,10 @@ def main(argv: list[str] | None = None) -> int:
             if "error" not in record
             else "FAILED: " + record["error"].strip().splitlines()[-1]
         )
+        left = _remaining(jobs, finished, time.perf_counter() - run_start)
         print(
-            f"[{len(records) - kept}/{len(jobs)} {meta['total_s']:.0f} s] {record['task']} "
-            f"{record['model']} seed {record['seed']}: {status}",
+            f"[done {len(records) - kept}/{len(jobs)}, {meta['total_s']:.0f} s{left}] "
+            f"{record['task']} {record['model']} seed {record['seed']}: {status}",
             flush=True,
         )
 
@@ -407,6 +458,7 @@ def main(argv: list[str] | None = None) -> int:
         f"data ready in {sum(data_s.values()):.1f} s",
         flush=True,
     )
+    run_start = time.perf_counter()
     try:
         _run_jobs(jobs, args, done)
     except (KeyboardInterrupt, BrokenProcessPool) as err:
@@ -418,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
         finished = len(records) - kept
         where = f"kept in {json_path} and {out}" if finished else "nothing written"
         print(
-            f"python -m hnn_pl reproduce: {what}: {finished} of {len(jobs)} runs finished, {where}",
+            f"{parser.prog}: {what}: {finished} of {len(jobs)} runs finished, {where}",
             file=sys.stderr,
             flush=True,
         )
@@ -431,9 +483,10 @@ def _run_jobs(jobs: list[tuple[str, str, int]], args: Any, done: Any) -> None:
     """Run every job (in this process for ``--workers 0``), ``done(record)`` as each
     finishes. Workers ignore Ctrl-C and die with this process (:func:`_die_with_parent`);
     on Ctrl-C or a dead worker the others are killed before the error goes on."""
+    kwargs = {"max_steps": args.max_steps, "recipe": args.recipe}
     if args.workers == 0:
-        for job in jobs:
-            done(run_one(*job, max_steps=args.max_steps, recipe=args.recipe))
+        for k, job in enumerate(jobs, 1):
+            done(_started(job, k, len(jobs), **kwargs))
         return
     pool = ProcessPoolExecutor(
         args.workers,
@@ -443,7 +496,7 @@ def _run_jobs(jobs: list[tuple[str, str, int]], args: Any, done: Any) -> None:
     )
     try:
         futures = [
-            pool.submit(run_one, *job, max_steps=args.max_steps, recipe=args.recipe) for job in jobs
+            pool.submit(_started, job, k, len(jobs), **kwargs) for k, job in enumerate(jobs, 1)
         ]
         for future in as_completed(futures):
             done(future.result())

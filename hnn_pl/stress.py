@@ -495,7 +495,9 @@ def faults_section() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = OneLineParser(prog="python -m hnn_pl stress", description=__doc__.split("\n\n")[0])
+    from hnn_pl.__main__ import program_name
+
+    parser = OneLineParser(prog=f"{program_name()} stress", description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--quick", action="store_true", help="10⁴ instead of 10⁶ steps; a short training"
     )

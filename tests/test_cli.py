@@ -25,7 +25,7 @@ def _common(tmp_path: Path) -> list[str]:
     ]
 
 
-def _fit(config: str, tmp_path: Path, steps: int = 4):
+def _fit(config: str, tmp_path: Path, steps: int = 4, extra: list[str] = ()):
     args = ["fit", "--config", config, f"--trainer.max_steps={steps}"]
     args += ["--trainer.check_val_every_n_epoch=1", "--trainer.val_check_interval=1.0"]
     args += ["--trainer.log_every_n_steps=1"]
@@ -33,6 +33,7 @@ def _fit(config: str, tmp_path: Path, steps: int = 4):
         "--trainer.limit_train_batches=2",
         "--model.init_args.inner_steps=2",
         *_common(tmp_path),
+        *extra,
     ]
     return cli_main(args)
 
@@ -137,13 +138,18 @@ def test_usage_names_the_program(argv0, prog, capsys, monkeypatch):
 
 @pytest.mark.parametrize("config", CONFIGS)
 def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
-    cli = _fit(config, tmp_path)
+    """9 steps, validated every 2 epochs (4 steps each for the full-batch tasks, 2 for
+    the pixel task): the last validation and its checkpoint come at step 8, inside the
+    fit; ``last.ckpt`` must still hold step 9, the model the end-of-fit metrics are of."""
+    cli = _fit(config, tmp_path, steps=9, extra=["--trainer.check_val_every_n_epoch=2"])
     trainer = cli.trainer
-    assert trainer.global_step == 4
+    assert trainer.global_step == 9
     log_dir = trainer.logger.log_dir
     assert Path(log_dir).name.startswith("version_")
     best = Path(trainer.checkpoint_callback.best_model_path)
     assert best.is_file() and best.parent == Path(log_dir, "checkpoints")
+    for path in (best, Path(log_dir, "checkpoints", "last.ckpt")):
+        assert torch.load(path, weights_only=True)["global_step"] == 9
     tags = _tags(log_dir)
     expected = {"train/loss", "val/loss", "rollout/energy_mse", "rollout/state_mse"}
     if "baseline" not in config:
@@ -199,3 +205,22 @@ def test_checkpoint_round_trip_rolls_out_the_same(tmp_path):
     torch.testing.assert_close(
         loaded.rollout(y0, t, method="rk4"), model.rollout(y0, t, method="rk4")
     )
+
+
+@pytest.mark.parametrize("command", ["reproduce", "bump", "stress"])
+def test_subcommand_help_names_the_program(command, capsys, monkeypatch):
+    from hnn_pl.__main__ import main
+
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/hnn-pl", command, "--help"])
+    with pytest.raises(SystemExit):
+        main()
+    assert capsys.readouterr().out.startswith(f"usage: hnn-pl {command}")
+
+
+def test_top_level_help_says_what_predict_writes(capsys, monkeypatch):
+    from hnn_pl.__main__ import main
+
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/hnn-pl"])
+    main(["--help"])
+    predict = capsys.readouterr().out.split("\n  predict ")[1].split("\n  reproduce")[0]
+    assert "rollouts.pt" in predict and "dy/dt" not in predict

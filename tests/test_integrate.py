@@ -411,3 +411,28 @@ def test_scipy_fun_takes_the_dtype_of_a_float32_model():
         ours = odeint(model.vector_field, y0, torch.tensor([0.0, 1.0]), rtol=1e-6, atol=1e-6)
     got = torch.from_numpy(sol.y[:, -1]).reshape(2, 2).float()
     torch.testing.assert_close(got, ours[-1], rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize("dtype, tol", [(F32, 2e-4), (F64, 2e-6)], ids=["f32", "f64"])
+def test_default_tolerances_fit_the_dtype(dtype, tol):
+    """``rtol``/``atol`` left out: float32's defaults (1e-5, 1e-6) are reachable in float32
+    and cost a fraction of the field calls of float64's (1e-7, 1e-9), whose accuracy
+    float32 cannot deliver anyway."""
+    from hnn_pl.integrate import DEFAULT_TOLERANCES
+
+    assert DEFAULT_TOLERANCES[F32] == (1e-5, 1e-6) and DEFAULT_TOLERANCES[F64] == (1e-7, 1e-9)
+    spring, y0 = MassSpring(), _spring_states(4)
+    t = torch.linspace(0, 20, 200, dtype=F64)
+    calls = {}
+    for name, kwargs in (("default", {}), ("tight", {"rtol": 1e-7, "atol": 1e-9})):
+        field = Counter(spring.vector_field)
+        out = odeint(field, y0.to(dtype), t.to(dtype), **kwargs, return_status=True)
+        calls[name] = field.calls
+        if name == "default":
+            assert bool(out.ok.all())
+            err = (out.y.double() - spring.exact_solution(t, y0)).abs().max().item()
+            assert err < tol, f"{dtype}: max error {err:.2e} >= {tol:.0e}"
+    if dtype == F32:
+        assert calls["default"] * 2 < calls["tight"], calls
+    else:
+        assert calls["default"] == calls["tight"]

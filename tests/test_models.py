@@ -75,3 +75,39 @@ def test_models_shapes_and_hparams():
     assert hnn.field.net.out.bias is None
     w = hnn.field.net.hidden[1].weight
     torch.testing.assert_close(w @ w.T, torch.eye(16), atol=1e-5, rtol=0)
+
+
+def test_float64_states_roll_out_a_float32_model():
+    """A float32 checkpoint takes float64 starts everywhere a user passes them: the field
+    runs in the model's dtype and answers in the states'."""
+    import hnn_pl
+
+    torch.manual_seed(0)
+    for model in (HNN(input_dim=2, hidden_dim=16), Baseline(input_dim=2, hidden_dim=16)):
+        y64 = torch.tensor([[1.0, 0.0], [0.0, 0.5]], dtype=torch.float64)
+        t = torch.linspace(0, 1, 5, dtype=torch.float64)
+        with torch.no_grad():
+            out64 = hnn_pl.odeint(model.vector_field, y64, t, method="rk4")
+            out32 = hnn_pl.odeint(model.vector_field, y64.float(), t.float(), method="rk4")
+        assert out64.dtype == torch.float64 and out32.dtype == torch.float32
+        torch.testing.assert_close(out64.float(), out32, rtol=0, atol=1e-5)
+        assert model.rollout(y64, t, method="rk4").dtype == torch.float32
+
+
+def test_float64_frames_encode_and_decode_in_a_float32_pixel_model():
+    from hnn_pl import AutoencoderHNN
+
+    model = AutoencoderHNN(input_dim=8, hidden_dim=8, field_hidden_dim=8)
+    x = torch.rand(3, 8, dtype=torch.float64)
+    z = model.encode(x)
+    assert z.dtype == torch.float64 and model.decode(z).dtype == torch.float64
+    torch.testing.assert_close(z.float(), model.encode(x.float()))
+
+
+def test_submodules_are_attributes_after_import_hnn_pl():
+    """``import hnn_pl`` then ``hnn_pl.bump.energy_bump``, as the README writes it."""
+    import subprocess
+    import sys
+
+    code = "import hnn_pl; hnn_pl.bump.energy_bump; hnn_pl.integrate.scipy_fun"
+    subprocess.run([sys.executable, "-c", code], check=True)

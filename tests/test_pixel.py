@@ -256,7 +256,7 @@ def test_short_fit_logs_losses_rollout_metrics_and_images(fitted):
     # rollouts ran at both epoch ends (steps 2 and 4)
     assert [e.step for e in acc.Scalars("rollout/energy_mse")] == [2, 4]
     frames = acc.Images("rollout/frames")[-1]
-    assert (frames.height, frames.width) == (2 * 28 * 4 + 2, 10 * 28 * 4 + 9)
+    assert frames.height > 2 * 28 * 4 + 2 and frames.width > 10 * 28 * 4 + 9  # + labels
 
 
 def test_callback_run_returns_consistent_metrics_and_rollout(fitted):
@@ -287,6 +287,12 @@ def test_callback_run_returns_consistent_metrics_and_rollout(fitted):
         assert r.h_pred.shape == (15, 2) and metrics["conserved_drift"] >= 0
     img = plotting.frames_image(r)
     assert img.dtype == torch.uint8 and img.shape == (1, 2 * 28 * 4 + 2, 10 * 28 * 4 + 9)
+    strip = plotting.frames_figure(r).axes[0]
+    assert [t.get_text() for t in strip.get_yticklabels()] == ["true", "predicted"]
+    times = [float(t.get_text()) for t in strip.get_xticklabels()]
+    assert times[0] == 0 and times[-1] == pytest.approx(float(r.t[-1]), abs=0.01)
+    energy = plotting.energy_over_time(r)
+    assert any("semi-implicit Euler" in t.get_text() for t in energy.texts)
 
 
 def test_test_command_under_both_inference_modes(fitted):

@@ -17,8 +17,16 @@ def _run(tmp_path, monkeypatch, extra=()):
     return reproduce.main(argv)
 
 
-def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch):
+def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch, capfd):
     assert _run(tmp_path, monkeypatch) == 0
+    # one line as each run starts, one as it ends with the time left; no Lightning chatter
+    out = capfd.readouterr()
+    lines = out.out.splitlines()
+    for k in range(1, 5):
+        start = next(i for i, line in enumerate(lines) if line.startswith(f"[start {k}/4] "))
+        assert lines[start + 1].startswith(f"[done {k}/4, ")
+    assert sum(" s left] " in line for line in lines) == 3
+    assert "Seed set" not in out.out + out.err and "GPU available" not in out.out + out.err
     md = (tmp_path / "R.md").read_text()
     data = json.loads((tmp_path / "R.json").read_text())
     assert len(data["runs"]) == 4 and not any("error" in r for r in data["runs"])

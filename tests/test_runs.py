@@ -11,7 +11,7 @@ import yaml
 
 import hnn_pl
 from hnn_pl import rollouts, tasks
-from hnn_pl.callbacks import RolloutCallback, task_protocol
+from hnn_pl.callbacks import FinalCheckpoint, RolloutCallback, task_protocol
 from hnn_pl.cli import cli_main
 from hnn_pl.config_paths import bundled_configs, resolve_config
 from hnn_pl.data import SimulatedData
@@ -144,10 +144,82 @@ def test_each_config_logs_under_its_own_name_with_what_tells_runs_apart(run):
     acc = EventAccumulator(str(log_dir))
     acc.Reload()
     assert "hp_metric" not in acc.Tags()["scalars"]
-    content = acc.PluginTagToContent("hparams")["_hparams_/experiment"]
-    experiment = plugin_data_pb2.HParamsPluginData.FromString(content).experiment
-    assert [m.name.tag for m in experiment.metric_infos] == ["rollout/energy_mse"]
+    content = acc.PluginTagToContent("hparams")
+    experiment = plugin_data_pb2.HParamsPluginData.FromString(content["_hparams_/experiment"])
+    assert [m.name.tag for m in experiment.experiment.metric_infos] == ["rollout/energy_mse"]
     assert "rollout/energy_mse" in acc.Tags()["scalars"]
+    # the HParams tab: one session, holding the recipe, the data and what tells runs apart
+    assert _hparams_summaries(log_dir) == 1
+    start = plugin_data_pb2.HParamsPluginData.FromString(content["_hparams_/session_start_info"])
+    shown = start.session_start_info.hparams
+    assert shown["lr"].number_value == 1e-3 and shown["hidden_dim"].number_value == 200
+    assert shown["schedule"].string_value == "constant"
+    assert shown["noise_std"].number_value == 0.1 and shown["n_trajectories"].number_value == 50
+    assert shown["model_class"].string_value == hp["model_class"]
+    assert {"system/class_path", "rollout_protocol/method", "inner_steps"} <= set(shown)
+
+
+def _hparams_summaries(log_dir: Path) -> int:
+    """How many hparams sessions the run's event files hold (TensorBoard shows the first)."""
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    return sum(
+        value.tag == "_hparams_/session_start_info"
+        for path in log_dir.glob("events.out.tfevents.*")
+        for event in EventFileLoader(str(path)).Load()
+        for value in event.summary.value
+    )
+
+
+def test_test_and_predict_log_into_the_run_they_evaluate(run):
+    """``--ckpt_path`` may name the run or the run name's directory (its latest run);
+    ``test`` and ``predict`` add to that run instead of starting a ``version_1``."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    config, tmp_path, cli = run
+    log_dir = Path(cli.trainer.logger.log_dir)
+    fit_config = (log_dir / "config.yaml").read_text()
+    test = cli_main(
+        ["test", "--config", config, f"--ckpt_path={log_dir.parent}", *_common(tmp_path)]
+    )
+    assert Path(test.trainer.logger.log_dir) == log_dir
+    predict = cli_main(
+        ["predict", "--config", config, f"--ckpt_path={log_dir}", *_common(tmp_path)]
+    )
+    assert Path(predict.trainer.logger.log_dir) == log_dir
+    assert sorted(p.name for p in log_dir.parent.iterdir()) == ["version_0"]
+    assert (log_dir / "config.yaml").read_text() == fit_config
+    assert (log_dir / "config_test.yaml").is_file() and (log_dir / "rollouts.pt").is_file()
+    acc = EventAccumulator(str(log_dir))
+    acc.Reload()
+    assert {"test/loss", "rollout/energy_mse"} <= set(acc.Tags()["scalars"])
+    assert _hparams_summaries(log_dir) == 1
+
+
+def test_a_missing_checkpoint_fails_before_any_run_directory_exists(tmp_path):
+    logs = tmp_path / "logs"
+    for path in (logs / "spring_hnn", logs / "spring_hnn" / "version_0" / "last.ckpt"):
+        with pytest.raises(FileNotFoundError, match="checkpoint"):
+            cli_main(["test", "--config", "spring.yaml", f"--ckpt_path={path}", *_common(tmp_path)])
+    assert not logs.exists()
+
+
+@pytest.mark.parametrize(
+    "option", ["--optimizer=SGD", "--optimizer.lr=0.1", "--lr_scheduler", "--optimizer"]
+)
+def test_lightning_optimizer_options_are_refused_not_ignored(option, tmp_path):
+    with pytest.raises(ValueError, match="model's recipe.*--model.init_args.optimizer"):
+        cli_main(["fit", "--config", "spring.yaml", option, "SGD", *_common(tmp_path)])
+
+
+def test_class_name_runs_get_the_configs_defaults(tmp_path, monkeypatch):
+    """No config: the paper's 2000 steps, a TensorBoard run named after the classes."""
+    monkeypatch.chdir(tmp_path)
+    args = ["--model", "HNN", "--data", "SimulatedData", "--data.system", "MassSpring"]
+    cli = cli_main([*args, f"--data.cache_dir={tmp_path / 'cache'}"], run=False)
+    assert cli.trainer.max_steps == 2000 and cli.trainer.max_epochs == -1
+    assert Path(cli.trainer.logger.log_dir) == Path("lightning_logs/mass_spring_hnn/version_0")
+    assert isinstance(cli.trainer.checkpoint_callback, FinalCheckpoint)
 
 
 def test_predict_writes_rollouts_beside_the_run_and_says_where(run, capsys):
@@ -158,7 +230,7 @@ def test_predict_writes_rollouts_beside_the_run_and_says_where(run, capsys):
     assert str(path) in capsys.readouterr().out
     out = torch.load(path, weights_only=True)
     assert out["y_pred"].shape == out["y_true"].shape == (200, 25, 2)
-    assert out["energy_pred"].shape == (200, 25) and out["dydt"].shape == (750, 2)
+    assert out["energy_pred"].shape == (200, 25) and "dydt" not in out
     assert ("h_pred" in out) == ("baseline" not in config)
     torch.testing.assert_close(out["y_pred"][0], out["y_true"][0])
     starts = tmp_path / "starts.pt"

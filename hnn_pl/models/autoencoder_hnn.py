@@ -102,18 +102,21 @@ class AutoencoderDynamicsModel(RecipeModel):
         raise NotImplementedError
 
     def encode(self, x: Tensor) -> Tensor:
-        """``x (..., input_dim) -> z (..., latent_dim)``."""
-        return self.encoder(x)
+        """``x (..., input_dim) -> z (..., latent_dim)``, in ``x``'s dtype (evaluated in
+        the model's)."""
+        return self.in_own_dtype(self.encoder, x)
 
     forward = encode
 
     def decode(self, z: Tensor) -> Tensor:
-        """``z (..., latent_dim) -> x̂ (..., input_dim)``."""
-        return self.decoder(z)
+        """``z (..., latent_dim) -> x̂ (..., input_dim)``, in ``z``'s dtype (evaluated in
+        the model's)."""
+        return self.in_own_dtype(self.decoder, z)
 
     def vector_field(self, t: Tensor | float | None, z: Tensor) -> Tensor:
-        """The latent ``f_θ(t, z)``, ``(batch, latent_dim) -> (batch, latent_dim)``."""
-        return self.field.vector_field(t, z)
+        """The latent ``f_θ(t, z)``, ``(batch, latent_dim) -> (batch, latent_dim)``, in
+        ``z``'s dtype (evaluated in the model's)."""
+        return self.in_own_dtype(lambda z: self.field.vector_field(t, z), z)
 
     def losses(self, x: Tensor, x_next: Tensor, noise: bool = False) -> dict[str, Tensor]:
         """The weighted total ``loss`` and its unweighted parts ``recon``,

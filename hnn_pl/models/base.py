@@ -61,8 +61,9 @@ class DynamicsModel(RecipeModel):
         raise NotImplementedError
 
     def vector_field(self, t: Tensor | float | None, y: Tensor) -> Tensor:
-        """``f_θ(t, y)``: ``(batch, 2k) -> (batch, 2k)``, for ``odeint`` or scipy."""
-        return self.field.vector_field(t, y)
+        """``f_θ(t, y)``: ``(batch, 2k) -> (batch, 2k)``, for ``odeint`` or scipy; ``y``
+        of any float dtype (evaluated in the model's, returned in ``y``'s)."""
+        return self.in_own_dtype(lambda y: self.field.vector_field(t, y), y)
 
     def forward(self, y: Tensor) -> Tensor:
         return self.field.vector_field(None, y)

@@ -9,6 +9,7 @@ its meaning whatever ``inner_steps`` is.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import lightning as L
@@ -110,6 +111,14 @@ class RecipeModel(L.LightningModule):
                 f"the checkpoint holds a {saved} but the config builds a {_class_path(self)}: "
                 "use the config the checkpoint was trained with"
             )
+
+    def in_own_dtype(self, fn: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
+        """``fn`` applied to ``x`` cast to the parameters' dtype, returned in ``x``'s: a
+        float32 checkpoint takes float64 states (``odeint``, scipy) and frames."""
+        param = next(self.parameters(), None)
+        if param is None or param.dtype == x.dtype or not x.is_floating_point():
+            return fn(x)
+        return fn(x.to(param.dtype)).to(x.dtype)
 
     def training_loss(self, batch: Any) -> dict[str, Tensor]:
         """``{"loss": scalar, <part>: scalar, …}`` of a training batch; parts are logged."""
