@@ -192,6 +192,30 @@ class HNNCLI(LightningCLI):
             kwargs["callbacks"] = [*callbacks, FinalCheckpoint()]
         return super().instantiate_trainer(**kwargs)
 
+    def instantiate_classes(self) -> None:
+        """Build the classes; Lightning's refusals of trainer options (``max_steps:
+        -5``) become one line."""
+        from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+        try:
+            super().instantiate_classes()
+        except MisconfigurationException as err:
+            raise CLIError(f"trainer: {str(err).strip().splitlines()[0]}") from None
+
+    def after_instantiate_classes(self) -> None:
+        """Checkpoints are saved atomically (a failed save never replaces a good
+        ``last.ckpt``); ``predict``'s file of starts is checked before any data."""
+        from hnn_pl.callbacks import RolloutWriter
+        from hnn_pl.safe_io import atomic_checkpoint_io
+
+        super().after_instantiate_classes()
+        if getattr(self, "trainer", None) is None:
+            return
+        self.trainer.strategy.checkpoint_io = atomic_checkpoint_io()
+        for callback in self.trainer.callbacks:
+            if isinstance(callback, RolloutWriter) and callback.starts is not None:
+                check_starts(callback.starts, _start_width(self.model, self.datamodule))
+
 
 def resolve_checkpoint(path: str) -> str:
     """The checkpoint a ``--ckpt_path`` names: a file as given; a run directory
@@ -238,30 +262,6 @@ def _run_name(model: Any, data: Any) -> str:
     system = getattr(getattr(data, "init_args", None), "system", None)
     named = [getattr(x, "class_path", None) for x in (system or data, model)]
     return "_".join(_snake(p.rsplit(".", 1)[-1]) for p in named if p) or "default"
-
-    def instantiate_classes(self) -> None:
-        """Build the classes; Lightning's refusals of trainer options (``max_steps:
-        -5``) become one line."""
-        from lightning.fabric.utilities.exceptions import MisconfigurationException
-
-        try:
-            super().instantiate_classes()
-        except MisconfigurationException as err:
-            raise CLIError(f"trainer: {str(err).strip().splitlines()[0]}") from None
-
-    def after_instantiate_classes(self) -> None:
-        """Checkpoints are saved atomically (a failed save never replaces a good
-        ``last.ckpt``); ``predict``'s file of starts is checked before any data."""
-        from hnn_pl.callbacks import RolloutWriter
-        from hnn_pl.safe_io import atomic_checkpoint_io
-
-        super().after_instantiate_classes()
-        if getattr(self, "trainer", None) is None:
-            return
-        self.trainer.strategy.checkpoint_io = atomic_checkpoint_io()
-        for callback in self.trainer.callbacks:
-            if isinstance(callback, RolloutWriter) and callback.starts is not None:
-                check_starts(callback.starts, _start_width(self.model, self.datamodule))
 
 
 def _start_width(model: Any, datamodule: Any) -> int:
