@@ -8,6 +8,7 @@ import math
 import pytest
 
 from hnn_pl import reproduce
+from hnn_pl.cli_errors import CLIError
 
 
 def _run(tmp_path, monkeypatch, extra=()):
@@ -140,5 +141,5 @@ def test_the_dissipative_model_runs_only_where_a_task_has_it(tmp_path, monkeypat
     row = next(line for line in md.splitlines() if line.startswith("| real_pendulum | dissip"))
     assert row.count("/ —") == 3, row  # no published numbers for this model
     assert "**real_pendulum.**" in md
-    with pytest.raises(SystemExit):
+    with pytest.raises(CLIError, match="no task of"):  # one line from __main__, exit 2
         reproduce.main(["--tasks", "spring", "--models", "dissipative", *common])
