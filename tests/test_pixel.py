@@ -52,7 +52,7 @@ def test_shapes_ranges_and_split(tmp_path):
     assert dm.rollout_x.shape == (12, 2, 1568)
     torch.testing.assert_close(dm.test_t, torch.arange(12) * 0.05)
     for x in (dm.x_train, dm.dx_train, dm.x_test, dm.rollout_x):
-        assert float(x.min()) == 0.0 and 0.45 < float(x.max()) <= 0.5
+        assert float(x.min()) == 0.0 and 0.45 < float(x.max()) <= 128 / 255 + 1e-7
     # every frame shows the rod: a few pixels' worth of intensity, well below a full frame
     mass = dm.x_train.view(-1, 2, PIX).sum(-1)
     assert bool((mass > 10).all()) and bool((mass < 100).all())
@@ -108,12 +108,13 @@ def test_states_follow_the_gym_map_and_label_the_second_frame(tmp_path):
     torch.testing.assert_close(y[..., 0], th[2:, 2:7], rtol=0, atol=1e-6)
     torch.testing.assert_close(y[..., 1], om[2:, 2:7], rtol=0, atol=1e-6)
     # ... and the second frame of the pair is the rendering of that state's angle
+    # (the data module renders in float32: within 1e-5 of a float64 rendering)
     second = dm.x_train[:, PIX:]
     drawn = render_pendulum(dm.theta[2:, 2:7].reshape(-1)).reshape(-1, PIX).float()
-    torch.testing.assert_close(second, drawn, rtol=0, atol=1e-6)
+    torch.testing.assert_close(second, drawn, rtol=0, atol=1e-5)
     first = dm.x_train[:, :PIX]
     drawn = render_pendulum(dm.theta[2:, 1:6].reshape(-1)).reshape(-1, PIX).float()
-    torch.testing.assert_close(first, drawn, rtol=0, atol=1e-6)
+    torch.testing.assert_close(first, drawn, rtol=0, atol=1e-5)
     # the held-out trajectories are the first ones, continued for the rollouts
     torch.testing.assert_close(dm.rollout_theta[:, :8], th[:2], rtol=0, atol=0)
     torch.testing.assert_close(dm.test_y[:, :, 0].T.double(), dm.rollout_theta[:, 1:13])
