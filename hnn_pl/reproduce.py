@@ -17,14 +17,17 @@ import json
 import math
 import os
 import platform
+import shutil
 import statistics
 import sys
+import tempfile
 import time
 import traceback
 import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
+from typing import Any
 
 from hnn_pl import tasks
 
@@ -49,9 +52,11 @@ def run_one(
     max_steps: int | None = None,
     recipe: str = "paper",
     overrides: tuple[str, ...] = (),
+    model_path: str | None = None,
 ) -> dict:
     """Train one model from its config (plus CLI ``overrides`` such as
     ``"--data.init_args.differences=central"``) and evaluate it; never raises.
+    ``model_path``: also ``torch.save`` the trained model's ``state_dict`` there.
 
     Returns:
         the run's record: identifiers, losses, both protocols' results, wall times
@@ -83,9 +88,53 @@ def run_one(
             steps=cli.trainer.global_step,
             tta=tta.reached,
         )
+        if model_path is not None:
+            torch.save(cli.model.state_dict(), model_path)
     except Exception:  # noqa: BLE001 - one failed run must not lose the others
         record["error"] = traceback.format_exc()
     return record
+
+
+def _trained(task: str, model: str, seed: int, recipe: str, path: Path) -> Any:
+    """The model and data module of a finished run, the model's weights from ``path``."""
+    import torch
+
+    from hnn_pl.cli import cli_main
+
+    cli = cli_main(_job_args(task, model, seed, None, recipe), run=False, save_config=False)
+    cli.model.load_state_dict(torch.load(path, weights_only=True))
+    return cli.model, cli.datamodule
+
+
+def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str) -> None:
+    """In place: for every pixel run whose task's reference protocol reads frames
+    through the HNN's encoder (``probe_encoder="hnn"``, as the reference evaluated its
+    baseline) and whose seed's HNN was trained in this call (weights in ``paths``), the
+    reference protocol again with that HNN as ``probe_model``; the own-encoder result is
+    kept as ``reference_own_encoder`` and ``reference_probe`` says which was used."""
+    import torch
+
+    from hnn_pl.evaluate import evaluate_protocol
+
+    torch.set_num_threads(1)
+    ok = {(r["task"], r["model"], r["seed"]): r for r in records if "error" not in r}
+    for (task, model, seed), record in ok.items():
+        spec = tasks.get(task)
+        if spec.kind != "pixel" or record.get("reference_probe"):
+            continue
+        record["reference_probe"] = "own"
+        hnn_key = (task, "hnn", seed)
+        if model == "hnn" or spec.reference.probe_encoder != "hnn" or hnn_key not in ok:
+            continue
+        if (task, model, seed) not in paths or hnn_key not in paths:
+            continue
+        net, dm = _trained(task, model, seed, recipe, paths[task, model, seed])
+        hnn, _ = _trained(task, "hnn", seed, recipe, paths[hnn_key])
+        dm.prepare_data()
+        dm.setup("test")
+        record["reference_own_encoder"] = record["reference"]
+        record["reference"] = evaluate_protocol(net, dm, spec.reference, probe_model=hnn)
+        record["reference_probe"] = "hnn"
 
 
 def _prepare_data(jobs: list[tuple[str, str, int]], recipe: str) -> dict[str, float]:
@@ -400,17 +449,27 @@ def main(argv: list[str] | None = None) -> int:
         f"data ready in {sum(data_s.values()):.1f} s",
         flush=True,
     )
-    if args.workers == 0:
-        for job in jobs:
-            done(run_one(*job, max_steps=args.max_steps, recipe=args.recipe))
-    else:
-        with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-            futures = [
-                pool.submit(run_one, *job, max_steps=args.max_steps, recipe=args.recipe)
-                for job in jobs
-            ]
-            for future in as_completed(futures):
-                done(future.result())
+    model_dir = Path(tempfile.mkdtemp(prefix="hnn_pl_models_"))
+    paths = {job: model_dir / f"{'_'.join(map(str, job))}.pt" for job in jobs}
+    paths = {job: path for job, path in paths.items() if tasks.get(job[0]).kind == "pixel"}
+    kwargs = {"max_steps": args.max_steps, "recipe": args.recipe}
+    try:
+        if args.workers == 0:
+            for job in jobs:
+                done(run_one(*job, **kwargs, model_path=paths.get(job)))
+        else:
+            with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
+                futures = [
+                    pool.submit(run_one, *job, **kwargs, model_path=paths.get(job)) for job in jobs
+                ]
+                for future in as_completed(futures):
+                    done(future.result())
+        if paths:
+            probe_through_hnn(records, {j: p for j, p in paths.items() if p.exists()}, args.recipe)
+            json_path.write_text(json.dumps({"meta": meta, "runs": records}, indent=1))
+            write_markdown(records, out, meta)
+    finally:
+        shutil.rmtree(model_dir, ignore_errors=True)
     print(f"wrote {out} and {json_path} in {time.perf_counter() - start:.0f} s")
     return 1 if any("error" in r for r in records) else 0
 

@@ -8,6 +8,7 @@ concatenated (earlier frame first): ``2·28² = 1568`` values.
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any
 
@@ -180,9 +181,14 @@ class PixelPendulumData(TrajectoryDataModule):
         """``α(1 − cos θ) + (c·θ̇)²`` of ``(θ, θ̇)`` states ``(..., 2) -> (...)``."""
         return self.canonical_energy(self.canonical(y))
 
-    def canonical_energy(self, qp: Tensor) -> Tensor:
-        """``α(1 − cos q) + p²`` of canonical ``(q, p)`` states ``(..., 2) -> (...)``."""
-        return self.system.energy(qp)
+    def canonical_energy(self, qp: Tensor, energy_coef: float | None = None) -> Tensor:
+        """``α(1 − cos q) + p²`` of canonical ``(q, p)`` states ``(..., 2) -> (...)``,
+        ``α = energy_coef`` (``None``: the system's)."""
+        if energy_coef is None:
+            return self.system.energy(qp)
+        system = copy.copy(self.system)
+        system.energy_coef = energy_coef
+        return system.energy(qp)
 
     def probe_data(self, n: int | None = None) -> tuple[Tensor, Tensor]:
         """The first ``n`` training inputs ``(n, 1568)`` and their canonical ``(q, p)
@@ -211,6 +217,20 @@ class PixelPendulumData(TrajectoryDataModule):
         if key not in self._rollout_cache:
             th0, om0 = self.rollout_theta[:, 0], self.rollout_omega[:, 0]
             self._rollout_cache[key] = self._rollout_truth(*self.system.simulate(th0, om0, n), n)
+        return self._rollout_cache[key]
+
+    def trajectory_truth(
+        self, theta0: float, omega0: float, n: int
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """``t (n,)``, ``(θ, θ̇) (n, 1, 2)`` and pairs ``(n, 1, 1568)`` of one fresh
+        trajectory from ``(θ₀, θ̇₀)`` (kept once made): ``n + 2`` frames with the first
+        dropped, as the reference's ``make_gym_dataset`` made its test trajectory (pair
+        ``k`` = frames ``k + 1, k + 2``, the state of frame ``k + 2``)."""
+        key = ("start", float(theta0), float(omega0), int(n))
+        if key not in self._rollout_cache:
+            start = torch.tensor([[theta0, omega0]], dtype=torch.float64)
+            theta, omega = self.system.simulate(start[:, 0], start[:, 1], n + 1)
+            self._rollout_cache[key] = self._rollout_truth(theta[:, 1:], omega[:, 1:], n)
         return self._rollout_cache[key]
 
     def rollout_target(
