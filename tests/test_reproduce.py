@@ -96,7 +96,12 @@ def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
     for r in runs:
         assert r["reference"]["n_trajectories"] == 1 and r["clean"]["n_trajectories"] > 1
         assert math.isfinite(r["clean"]["pixel_mse"]) and math.isfinite(r["test_loss"])
-    assert "| pixel | first held-out" in (tmp_path / "R.md").read_text()
+    assert "| pixel | the reference's evaluation" in (tmp_path / "R.md").read_text()
+    # the baseline is read through its seed's HNN, as the reference did; its own kept
+    by = {r["model"]: r for r in runs}
+    assert by["hnn"]["reference_probe"] == "own" and by["baseline"]["reference_probe"] == "hnn"
+    own = by["baseline"]["reference_own_encoder"]["energy_mse"]
+    assert math.isfinite(own) and own != by["baseline"]["reference"]["energy_mse"]
 
 
 def test_fast_recipe_records_time_to_accuracy(tmp_path, monkeypatch):
