@@ -382,6 +382,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", default=None, help="the raw records (default: OUT with .json)")
     parser.add_argument(
+        "--models-dir",
+        default=None,
+        help="keep the pixel runs' weights there (default: a temporary folder, removed at "
+        "the end); a pixel baseline is read through its seed's HNN found there, also one "
+        "an earlier --merge call left",
+    )
+    parser.add_argument(
         "--merge",
         action="store_true",
         help="keep the runs already in the JSON file that this call does not redo",
@@ -449,9 +456,14 @@ def main(argv: list[str] | None = None) -> int:
         f"data ready in {sum(data_s.values()):.1f} s",
         flush=True,
     )
-    model_dir = Path(tempfile.mkdtemp(prefix="hnn_pl_models_"))
-    paths = {job: model_dir / f"{'_'.join(map(str, job))}.pt" for job in jobs}
-    paths = {job: path for job, path in paths.items() if tasks.get(job[0]).kind == "pixel"}
+    keep = args.models_dir is not None
+    model_dir = Path(args.models_dir) if keep else Path(tempfile.mkdtemp(prefix="hnn_pl_models_"))
+    model_dir.mkdir(parents=True, exist_ok=True)
+
+    def weights(task: str, model: str, seed: int) -> Path:
+        return model_dir / f"{task}_{model}_{seed}_{args.recipe}.pt"
+
+    paths = {job: weights(*job) for job in jobs if tasks.get(job[0]).kind == "pixel"}
     kwargs = {"max_steps": args.max_steps, "recipe": args.recipe}
     try:
         if args.workers == 0:
@@ -465,11 +477,14 @@ def main(argv: list[str] | None = None) -> int:
                 for future in as_completed(futures):
                     done(future.result())
         if paths:
-            probe_through_hnn(records, {j: p for j, p in paths.items() if p.exists()}, args.recipe)
+            hnns = {(t, "hnn", s): weights(t, "hnn", s) for t, _, s in paths}
+            found = {j: p for j, p in {**paths, **hnns}.items() if p.exists()}
+            probe_through_hnn(records, found, args.recipe)
             json_path.write_text(json.dumps({"meta": meta, "runs": records}, indent=1))
             write_markdown(records, out, meta)
     finally:
-        shutil.rmtree(model_dir, ignore_errors=True)
+        if not keep:
+            shutil.rmtree(model_dir, ignore_errors=True)
     print(f"wrote {out} and {json_path} in {time.perf_counter() - start:.0f} s")
     return 1 if any("error" in r for r in records) else 0
 

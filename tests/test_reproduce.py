@@ -90,7 +90,14 @@ def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
 def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     argv = ["--tasks", "pixel", "--seeds", "1", "--workers", "0", "--max-steps", "2"]
-    assert reproduce.main([*argv, "--out", str(tmp_path / "R.md")]) == 0
+    argv += ["--out", str(tmp_path / "R.md"), "--models-dir", str(tmp_path / "w")]
+    # the HNN first, the baseline in a later call: read through the HNN the first one kept
+    assert reproduce.main([*argv, "--models", "hnn"]) == 0
+    assert reproduce.main([*argv, "--models", "baseline", "--merge"]) == 0
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == [
+        "pixel_baseline_0_paper.pt",
+        "pixel_hnn_0_paper.pt",
+    ]
     runs = json.loads((tmp_path / "R.json").read_text())["runs"]
     assert sorted(r["model"] for r in runs) == ["baseline", "hnn"]
     for r in runs:
