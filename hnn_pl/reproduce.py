@@ -106,10 +106,15 @@ def _trained(task: str, model: str, seed: int, recipe: str, path: Path) -> Any:
     return cli.model, cli.datamodule
 
 
+def _through_hnn(task: str) -> bool:
+    """Whether ``task``'s reference protocol reads every model through the HNN's encoder."""
+    return getattr(tasks.get(task).reference, "probe_encoder", "own") == "hnn"
+
+
 def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str) -> None:
-    """In place: for every pixel run whose task's reference protocol reads frames
-    through the HNN's encoder (``probe_encoder="hnn"``, as the reference evaluated its
-    baseline) and whose seed's HNN was trained in this call (weights in ``paths``), the
+    """In place: for every run whose task's reference protocol reads frames through
+    the HNN's encoder (pixel: ``probe_encoder="hnn"``, as the reference evaluated its
+    baseline) and whose seed's HNN has weights in ``paths``, the
     reference protocol again with that HNN as ``probe_model``; the own-encoder result is
     kept as ``reference_own_encoder`` and ``reference_probe`` says which was used."""
     import torch
@@ -119,12 +124,11 @@ def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str
     torch.set_num_threads(1)
     ok = {(r["task"], r["model"], r["seed"]): r for r in records if "error" not in r}
     for (task, model, seed), record in ok.items():
-        spec = tasks.get(task)
-        if spec.kind != "pixel" or record.get("reference_probe"):
+        if not _through_hnn(task) or record.get("reference_probe"):
             continue
         record["reference_probe"] = "own"
         hnn_key = (task, "hnn", seed)
-        if model == "hnn" or spec.reference.probe_encoder != "hnn" or hnn_key not in ok:
+        if model == "hnn" or hnn_key not in ok:
             continue
         if (task, model, seed) not in paths or hnn_key not in paths:
             continue
@@ -133,7 +137,7 @@ def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str
         dm.prepare_data()
         dm.setup("test")
         record["reference_own_encoder"] = record["reference"]
-        record["reference"] = evaluate_protocol(net, dm, spec.reference, probe_model=hnn)
+        record["reference"] = evaluate_protocol(net, dm, tasks.get(task).reference, probe_model=hnn)
         record["reference_probe"] = "hnn"
 
 
@@ -463,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
     def weights(task: str, model: str, seed: int) -> Path:
         return model_dir / f"{task}_{model}_{seed}_{args.recipe}.pt"
 
-    paths = {job: weights(*job) for job in jobs if tasks.get(job[0]).kind == "pixel"}
+    paths = {job: weights(*job) for job in jobs if _through_hnn(job[0])}
     kwargs = {"max_steps": args.max_steps, "recipe": args.recipe}
     try:
         if args.workers == 0:
