@@ -177,10 +177,13 @@ def evaluate_reference(
     return score_reference(model, reference_case(dm, protocol or tasks.get(task).reference))
 
 
-def evaluate_protocol(model: Any, dm: Any, protocol: Protocol) -> dict[str, float]:
-    """:func:`hnn_pl.rollouts.score`'s metrics under ``protocol`` plus the grouped
-    ``energy_mse_pm``, ``n_trajectories`` and ``t_end``."""
-    metrics, r = rollouts.evaluate(model, dm, protocol)
+def evaluate_protocol(
+    model: Any, dm: Any, protocol: Protocol, probe_model: Any = None
+) -> dict[str, float]:
+    """:func:`hnn_pl.rollouts.score`'s metrics under ``protocol`` (pixel: ``probe_model``,
+    see :func:`hnn_pl.rollouts.run`) plus the grouped ``energy_mse_pm``,
+    ``n_trajectories`` and ``t_end``."""
+    metrics, r = rollouts.evaluate(model, dm, protocol, probe_model)
     per_traj = rollouts.energy_mse_per_trajectory(r.rows(r.status == 0))
     metrics["energy_mse_pm"] = grouped_mean(per_traj, protocol.n_groups)[1]
     return {**metrics, "n_trajectories": r.y_true.shape[1], "t_end": float(r.t[-1])}
@@ -203,8 +206,12 @@ def evaluate_state(task: tasks.Task, model: Any, dm: Any) -> dict[str, Any]:
     }
 
 
-def evaluate_pixel(task: tasks.Task, model: Any, dm: Any, chunk: int = 4000) -> dict[str, Any]:
-    """Losses and both latent-rollout protocols of a pixel model.
+def evaluate_pixel(
+    task: tasks.Task, model: Any, dm: Any, chunk: int = 4000, probe_model: Any = None
+) -> dict[str, Any]:
+    """Losses and both latent-rollout protocols of a pixel model (``probe_model``: the
+    HNN whose encoder the reference protocol reads the model's frames through; ``None``:
+    the model's own).
 
     Losses are the model's three-term loss over each whole split (chunks of
     ``chunk`` rows, averaged by size).
@@ -220,8 +227,8 @@ def evaluate_pixel(task: tasks.Task, model: Any, dm: Any, chunk: int = 4000) -> 
                 for i in range(0, len(x), chunk)
             )
             out[f"{split}_loss"], out[f"{split}_loss_pm"] = total / len(x), math.nan
-    for name in ("reference", "clean"):
-        out[name] = evaluate_protocol(model, dm, task.protocol(name))
+    out["reference"] = evaluate_protocol(model, dm, task.reference, probe_model)
+    out["clean"] = evaluate_protocol(model, dm, task.clean)
     return out
 
 

@@ -32,6 +32,18 @@ class Protocol:
         scale_rows: training inputs over which ``H_θ``'s spread (the yardstick of
             ``conserved_drift``) is measured.
         probe_rows: pixel: training inputs the probe ``z ↦ (q, p)`` is fitted on.
+        start: pixel: ``(θ₀, θ̇₀)`` of one fresh trajectory to roll out instead of the
+            held-out ones (its first frame dropped, as the training samples').
+        model_t_end: pixel: the latent integration spans ``[0, model_t_end]`` frames at
+            the ``n_points`` output times, read against the true frames ``0 … n_points
+            − 1``; ``None``: one point per frame.
+        energy_coef: pixel: ``α`` of the scored energy ``α(1 − cos q) + p²``; ``None``:
+            the data's.
+        reencode: pixel: decode the rollout and encode the frames again before the
+            probe (else the probe reads the integrated latents).
+        probe_encoder: pixel: ``"own"``, or ``"hnn"``: the probe is fitted on, and the
+            decoded frames re-encoded by, the encoder of an HNN passed to
+            :func:`hnn_pl.rollouts.run` (``probe_model``; the model's own without one).
     """
 
     t_end: float | None = 20.0
@@ -45,9 +57,22 @@ class Protocol:
     n_groups: int = 5
     scale_rows: int = 4096
     probe_rows: int | None = None
+    start: tuple[float, float] | None = None
+    model_t_end: float | None = None
+    energy_coef: float | None = None
+    reencode: bool = False
+    probe_encoder: str = "own"
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if self.probe_encoder not in ("own", "hnn"):
+            raise ValueError(f"probe_encoder must be 'own' or 'hnn', got {self.probe_encoder!r}")
+        if self.probe_encoder == "hnn" and not self.reencode:
+            raise ValueError("probe_encoder='hnn' reads decoded frames: it needs reencode=True")
+        if self.start is not None:
+            if len(self.start) != 2:
+                raise ValueError(f"start must be (theta0, omega0), got {self.start!r}")
+            object.__setattr__(self, "start", tuple(float(v) for v in self.start))
         if self.dtype not in ("float64", "float32", "model"):
             raise ValueError(f"dtype must be 'float64', 'float32' or 'model', got {self.dtype!r}")
         from hnn_pl.integrate import METHODS  # torch only; validates before any work

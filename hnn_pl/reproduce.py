@@ -16,8 +16,10 @@ import json
 import math
 import os
 import platform
+import shutil
 import statistics
 import sys
+import tempfile
 import time
 import traceback
 import uuid
@@ -54,9 +56,11 @@ def run_one(
     max_steps: int | None = None,
     recipe: str = "paper",
     overrides: tuple[str, ...] = (),
+    model_path: str | None = None,
 ) -> dict:
     """Train one model from its config (plus CLI ``overrides`` such as
     ``"--data.init_args.differences=central"``) and evaluate it; never raises.
+    ``model_path``: also ``torch.save`` the trained model's ``state_dict`` there.
 
     Returns:
         the run's record: identifiers, losses, both protocols' results, wall times
@@ -64,10 +68,12 @@ def run_one(
     """
     record = {"task": task, "model": model, "seed": seed}
     with _quiet_lightning_runs():
-        return _run_one(record, max_steps, recipe, overrides)
+        return _run_one(record, max_steps, recipe, overrides, model_path)
 
 
-def _run_one(record: dict, max_steps: int | None, recipe: str, overrides: tuple) -> dict:
+def _run_one(
+    record: dict, max_steps: int | None, recipe: str, overrides: tuple, model_path: str | None
+) -> dict:
     task, model, seed = record["task"], record["model"], record["seed"]
     try:
         import torch
@@ -94,6 +100,8 @@ def _run_one(record: dict, max_steps: int | None, recipe: str, overrides: tuple)
             steps=cli.trainer.global_step,
             tta=tta.reached,
         )
+        if model_path is not None:
+            torch.save(cli.model.state_dict(), model_path)
     except Exception:  # noqa: BLE001 - one failed run must not lose the others
         record["error"] = traceback.format_exc()
     return record
@@ -133,6 +141,52 @@ def _remaining(jobs: list, done: list, elapsed: float) -> str:
         return ""
     left = elapsed * (sum(cost.values()) - spent) / spent
     return f", ~{left:.0f} s left" if left > 0 else ""
+
+
+def _trained(task: str, model: str, seed: int, recipe: str, path: Path) -> Any:
+    """The model and data module of a finished run, the model's weights from ``path``."""
+    import torch
+
+    from hnn_pl.cli import cli_main
+
+    cli = cli_main(_job_args(task, model, seed, None, recipe), run=False, save_config=False)
+    cli.model.load_state_dict(torch.load(path, weights_only=True))
+    return cli.model, cli.datamodule
+
+
+def _through_hnn(task: str) -> bool:
+    """Whether ``task``'s reference protocol reads every model through the HNN's encoder."""
+    return getattr(tasks.get(task).reference, "probe_encoder", "own") == "hnn"
+
+
+def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str) -> None:
+    """In place: for every run whose task's reference protocol reads frames through
+    the HNN's encoder (pixel: ``probe_encoder="hnn"``, as the reference evaluated its
+    baseline) and whose seed's HNN has weights in ``paths``, the
+    reference protocol again with that HNN as ``probe_model``; the own-encoder result is
+    kept as ``reference_own_encoder`` and ``reference_probe`` says which was used."""
+    import torch
+
+    from hnn_pl.evaluate import evaluate_protocol
+
+    torch.set_num_threads(1)
+    ok = {(r["task"], r["model"], r["seed"]): r for r in records if "error" not in r}
+    for (task, model, seed), record in ok.items():
+        if not _through_hnn(task) or record.get("reference_probe"):
+            continue
+        record["reference_probe"] = "own"
+        hnn_key = (task, "hnn", seed)
+        if model == "hnn" or hnn_key not in ok:
+            continue
+        if (task, model, seed) not in paths or hnn_key not in paths:
+            continue
+        net, dm = _trained(task, model, seed, recipe, paths[task, model, seed])
+        hnn, _ = _trained(task, "hnn", seed, recipe, paths[hnn_key])
+        dm.prepare_data()
+        dm.setup("test")
+        record["reference_own_encoder"] = record["reference"]
+        record["reference"] = evaluate_protocol(net, dm, tasks.get(task).reference, probe_model=hnn)
+        record["reference_probe"] = "hnn"
 
 
 def _prepare_data(jobs: list[tuple[str, str, int]], recipe: str) -> dict[str, float]:
@@ -380,6 +434,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", default=None, help="the raw records (default: OUT with .json)")
     parser.add_argument(
+        "--models-dir",
+        default=None,
+        help="keep the pixel runs' weights there (default: a temporary folder, removed at "
+        "the end); a pixel baseline is read through its seed's HNN found there, also one "
+        "an earlier --merge call left",
+    )
+    parser.add_argument(
         "--merge",
         action="store_true",
         help="keep the runs already in the JSON file that this call does not redo",
@@ -459,8 +520,22 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     run_start = time.perf_counter()
+    keep = args.models_dir is not None
+    model_dir = Path(args.models_dir) if keep else Path(tempfile.mkdtemp(prefix="hnn_pl_models_"))
+    model_dir.mkdir(parents=True, exist_ok=True)
+
+    def weights(task: str, model: str, seed: int) -> Path:
+        return model_dir / f"{task}_{model}_{seed}_{args.recipe}.pt"
+
+    paths = {job: weights(*job) for job in jobs if _through_hnn(job[0])}
     try:
-        _run_jobs(jobs, args, done)
+        _run_jobs(jobs, args, done, paths)
+        if paths:
+            hnns = {(t, "hnn", s): weights(t, "hnn", s) for t, _, s in paths}
+            found = {j: p for j, p in {**paths, **hnns}.items() if p.exists()}
+            probe_through_hnn(records, found, args.recipe)
+            write_atomic(json_path, json.dumps({"meta": meta, "runs": records}, indent=1).encode())
+            write_markdown(records, out, meta)
     except (KeyboardInterrupt, BrokenProcessPool) as err:
         what = (
             "interrupted"
@@ -475,18 +550,23 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
         return 130 if isinstance(err, KeyboardInterrupt) else 2
+    finally:
+        if not keep:
+            shutil.rmtree(model_dir, ignore_errors=True)
     print(f"wrote {out} and {json_path} in {time.perf_counter() - start:.0f} s")
     return 1 if any("error" in r for r in records) else 0
 
 
-def _run_jobs(jobs: list[tuple[str, str, int]], args: Any, done: Any) -> None:
+def _run_jobs(
+    jobs: list[tuple[str, str, int]], args: Any, done: Any, paths: dict[tuple, Path]
+) -> None:
     """Run every job (in this process for ``--workers 0``), ``done(record)`` as each
     finishes. Workers ignore Ctrl-C and die with this process (:func:`_die_with_parent`);
     on Ctrl-C or a dead worker the others are killed before the error goes on."""
     kwargs = {"max_steps": args.max_steps, "recipe": args.recipe}
     if args.workers == 0:
         for k, job in enumerate(jobs, 1):
-            done(_started(job, k, len(jobs), **kwargs))
+            done(_started(job, k, len(jobs), **kwargs, model_path=paths.get(job)))
         return
     pool = ProcessPoolExecutor(
         args.workers,
@@ -496,7 +576,8 @@ def _run_jobs(jobs: list[tuple[str, str, int]], args: Any, done: Any) -> None:
     )
     try:
         futures = [
-            pool.submit(_started, job, k, len(jobs), **kwargs) for k, job in enumerate(jobs, 1)
+            pool.submit(_started, job, k, len(jobs), **kwargs, model_path=paths.get(job))
+            for k, job in enumerate(jobs, 1)
         ]
         for future in as_completed(futures):
             done(future.result())

@@ -180,23 +180,33 @@ def rollout(
     return out
 
 
-def run(model: Any, dm: Any, protocol: Protocol) -> Rollout:
+def run(model: Any, dm: Any, protocol: Protocol, probe_model: Any = None) -> Rollout:
     """Roll ``model`` out from ``dm``'s held-out starts under ``protocol``.
 
     State models: starts and truth from ``dm.rollout_target(t_end, n_points)``.
     Pixel models: the first frame pair of each held-out trajectory is encoded, the
     latent field integrated over ``n_points`` frames (``t = k·frame_dt``), decoded,
     and the latents mapped to ``(q, p)`` by an affine least-squares probe fitted on
-    ``probe_rows`` encoded training inputs; each model uses its own encoder and probe.
-    The model is put in eval mode and restored.
+    ``probe_rows`` encoded training inputs; each model uses its own encoder and probe,
+    unless ``protocol.probe_encoder == "hnn"`` and ``probe_model`` is given: then the
+    probe is fitted on ``probe_model``'s encodings and reads the model's decoded
+    frames through ``probe_model``'s encoder (the reference's evaluation of the
+    baseline through the HNN's encoder). ``protocol.start``, ``model_t_end``,
+    ``energy_coef``, ``reencode``: see :class:`~hnn_pl.protocols.Protocol`.
+    The models are put in eval mode and restored.
     """
-    was_training = model.training
+    reader = model if probe_model is None or protocol.probe_encoder == "own" else probe_model
+    was_training = model.training, reader.training
     model.eval()
+    reader.eval()
     try:
         with torch.no_grad():
-            return (_run_pixel if is_pixel_model(model) else _run_state)(model, dm, protocol)
+            if is_pixel_model(model):
+                return _run_pixel(model, dm, protocol, reader)
+            return _run_state(model, dm, protocol)
     finally:
-        model.train(was_training)
+        model.train(was_training[0])
+        reader.train(was_training[1])
 
 
 def _device(model: Any) -> torch.device:
@@ -267,37 +277,54 @@ def apply_probe(w: Tensor, z: Tensor) -> Tensor:
     return z.double() @ w[:-1] + w[-1]
 
 
-def _run_pixel(model: Any, dm: Any, p: Protocol) -> Rollout:
+def _run_pixel(model: Any, dm: Any, p: Protocol, reader: Any) -> Rollout:
     device = _device(model)
     x_train, qp_train = dm.probe_data(p.probe_rows)
-    z_train = model.encode(x_train.to(device))
+    z_train = reader.encode(x_train.to(device))
     probe, probe_mse = fit_probe(z_train, qp_train.to(device))
-    t, y_true, x_true = dm.rollout_truth(p.t_end, p.n_points)
-    y_true, x_true = y_true[:, : p.max_starts], x_true[:, : p.max_starts].to(device)
+    if p.start is None:
+        t, y_true, x_true = dm.rollout_truth(p.t_end, p.n_points)
+        y_true, x_true = y_true[:, : p.max_starts], x_true[:, : p.max_starts].to(device)
+    else:
+        t, y_true, x_true = dm.trajectory_truth(*p.start, p.n_points or dm.rollout_frames)
+        x_true = x_true.to(device)
     z_true = model.encode(x_true)
-    t_model = torch.arange(len(t), dtype=torch.float64, device=device) * model.frame_dt
+    if p.model_t_end is None:
+        t_model = torch.arange(len(t), dtype=torch.float64, device=device)
+    else:
+        t_model = torch.linspace(0, p.model_t_end, len(t), dtype=torch.float64, device=device)
     kw = p.solver_kwargs()
-    sol, field = integrate_field(model.field, z_true[0], t_model, dtype=p.dtype, **kw)
+    sol, field = integrate_field(
+        model.field, z_true[0], t_model * model.frame_dt, dtype=p.dtype, **kw
+    )
     z_pred = sol.y
+    x_pred = model.decode(z_pred.to(z_true.dtype))
+    if p.reencode:
+        z_read = reader.encode(x_pred)
+    elif reader is not model:
+        raise ValueError("a probe on another model's encoder reads decoded frames: reencode=True")
+    else:
+        z_read = z_pred
     qp_true = dm.canonical(y_true.to(device)).double()
-    qp_pred = apply_probe(probe, z_pred)
+    qp_pred = apply_probe(probe, z_read)
     r = Rollout(
         t=t.double().cpu(),
         y_true=qp_true,
         y_pred=qp_pred,
-        e_true=dm.canonical_energy(qp_true),
-        e_pred=dm.canonical_energy(qp_pred),
+        e_true=dm.canonical_energy(qp_true, p.energy_coef),
+        e_pred=dm.canonical_energy(qp_pred, p.energy_coef),
         z_true=z_true.to(z_pred.dtype),
         z_pred=z_pred,
         x_true=x_true,
-        x_pred=model.decode(z_pred.to(z_true.dtype)),
+        x_pred=x_pred,
         probe=probe,
         probe_mse=probe_mse,
         status=sol.status,
     )
     r.h_pred = _learned_h(field, z_pred)
     if r.h_pred is not None:
-        r.h_scale = field.hamiltonian(z_train.to(z_pred.dtype)).std()
+        z_own = z_train if reader is model else model.encode(x_train.to(device))
+        r.h_scale = field.hamiltonian(z_own.to(z_pred.dtype)).std()
     return r
 
 
@@ -400,7 +427,9 @@ def score(r: Rollout) -> dict[str, float]:
     return {k: float(v) for k, v in out.items()}
 
 
-def evaluate(model: Any, dm: Any, protocol: Protocol) -> tuple[dict[str, float], Rollout]:
+def evaluate(
+    model: Any, dm: Any, protocol: Protocol, probe_model: Any = None
+) -> tuple[dict[str, float], Rollout]:
     """:func:`run` then :func:`score`: ``({metric: value}, rollout)``."""
-    r = run(model, dm, protocol)
+    r = run(model, dm, protocol, probe_model)
     return score(r), r

@@ -52,7 +52,7 @@ def test_shapes_ranges_and_split(tmp_path):
     assert dm.rollout_x.shape == (12, 2, 1568)
     torch.testing.assert_close(dm.test_t, torch.arange(12) * 0.05)
     for x in (dm.x_train, dm.dx_train, dm.x_test, dm.rollout_x):
-        assert float(x.min()) == 0.0 and 0.45 < float(x.max()) <= 0.5
+        assert float(x.min()) == 0.0 and 0.45 < float(x.max()) <= 128 / 255 + 1e-7
     # every frame shows the rod: a few pixels' worth of intensity, well below a full frame
     mass = dm.x_train.view(-1, 2, PIX).sum(-1)
     assert bool((mass > 10).all()) and bool((mass < 100).all())
@@ -108,12 +108,13 @@ def test_states_follow_the_gym_map_and_label_the_second_frame(tmp_path):
     torch.testing.assert_close(y[..., 0], th[2:, 2:7], rtol=0, atol=1e-6)
     torch.testing.assert_close(y[..., 1], om[2:, 2:7], rtol=0, atol=1e-6)
     # ... and the second frame of the pair is the rendering of that state's angle
+    # (the data module renders in float32: within 1e-5 of a float64 rendering)
     second = dm.x_train[:, PIX:]
     drawn = render_pendulum(dm.theta[2:, 2:7].reshape(-1)).reshape(-1, PIX).float()
-    torch.testing.assert_close(second, drawn, rtol=0, atol=1e-6)
+    torch.testing.assert_close(second, drawn, rtol=0, atol=1e-5)
     first = dm.x_train[:, :PIX]
     drawn = render_pendulum(dm.theta[2:, 1:6].reshape(-1)).reshape(-1, PIX).float()
-    torch.testing.assert_close(first, drawn, rtol=0, atol=1e-6)
+    torch.testing.assert_close(first, drawn, rtol=0, atol=1e-5)
     # the held-out trajectories are the first ones, continued for the rollouts
     torch.testing.assert_close(dm.rollout_theta[:, :8], th[:2], rtol=0, atol=0)
     torch.testing.assert_close(dm.test_y[:, :, 0].T.double(), dm.rollout_theta[:, 1:13])
@@ -147,6 +148,48 @@ def test_rollout_truth_extends_beyond_the_stored_horizon(tmp_path):
     torch.testing.assert_close(e, 1.875 * (1 - torch.cos(q)) + p**2)
     with pytest.raises(ValueError, match="holds out 0"):
         PixelPendulumData(n_trajectories=2, test_fraction=0.1)
+
+
+def test_trajectory_truth_is_a_fresh_trajectory_without_its_first_frame(tmp_path):
+    """The reference's test trajectory: gym's map from (θ₀, θ̇₀), frame 0 dropped."""
+    dm = _data(tmp_path)
+    t, y, x = dm.trajectory_truth(0.2934, 0.7326, 10)
+    assert t.shape == (10,) and y.shape == (10, 1, 2) and x.shape == (10, 1, 1568)
+    th, om = 0.2934, 0.7326
+    states = []
+    for _ in range(11):
+        om = om - 15.0 * math.sin(th) * 0.05
+        th = th + om * 0.05
+        states.append((th, om))
+    # pair k = frames k + 1, k + 2, labelled with the state of frame k + 2
+    expected = torch.tensor(states[1:], dtype=torch.float64)
+    torch.testing.assert_close(y[:, 0].double(), expected, rtol=0, atol=1e-6)
+    angles = torch.tensor([s[0] for s in states], dtype=torch.float64)
+    frames = render_pendulum(angles).reshape(11, PIX).float()
+    torch.testing.assert_close(x[:, 0, :PIX], frames[:10], rtol=0, atol=1e-5)
+    torch.testing.assert_close(x[:, 0, PIX:], frames[1:], rtol=0, atol=1e-5)
+    assert dm.trajectory_truth(0.2934, 0.7326, 10)[2] is x  # made once
+    # the energy the reference scored: α = 1.9 on request, the system's 1.875 otherwise
+    qp = dm.canonical(y)
+    torch.testing.assert_close(
+        dm.canonical_energy(qp, 1.9), 1.9 * (1 - torch.cos(qp[..., 0])) + qp[..., 1] ** 2
+    )
+    torch.testing.assert_close(dm.canonical_energy(qp), dm.energy(y))
+
+
+def test_pixel_protocol_fields_are_checked():
+    ref = TASKS["pixel"].reference
+    assert ref.start == (0.2934, 0.7326) and ref.model_t_end == pytest.approx(196.0)
+    assert ref.energy_coef == 1.9 and ref.reencode and ref.probe_encoder == "hnn"
+    assert ref.replace(start=[0.1, 0.2]).start == (0.1, 0.2)
+    with pytest.raises(ValueError, match="reencode"):
+        ref.replace(reencode=False)
+    with pytest.raises(ValueError, match="probe_encoder"):
+        ref.replace(probe_encoder="baseline")
+    with pytest.raises(ValueError, match="start"):
+        ref.replace(start=(0.1,))
+    with pytest.raises(ValueError, match="model_t_end"):
+        ref.replace(model_t_end=0.0)
 
 
 # --------------------------------------------------------------------------- models
@@ -293,6 +336,43 @@ def test_callback_run_returns_consistent_metrics_and_rollout(fitted):
     assert times[0] == 0 and times[-1] == pytest.approx(float(r.t[-1]), abs=0.01)
     energy = plotting.energy_over_time(r)
     assert any("semi-implicit Euler" in t.get_text() for t in energy.texts)
+
+
+def test_reference_protocol_reads_decoded_frames_through_the_probe_model(fitted):
+    """The reference's evaluation: latent over [0, model_t_end] frames, decoded,
+    re-encoded by the probe model's encoder, read by its probe, H with α = 1.9."""
+    _, _, cli = fitted
+    model, dm = cli.model, cli.datamodule
+    n = 15
+    protocol = TASKS["pixel"].reference.replace(n_points=n, model_t_end=0.98 * n)
+    own, r = rollouts.evaluate(model, dm, protocol)
+    assert r.y_true.shape == (n, 1, 2) and r.x_pred.shape == (n, 1, 1568)
+    _, y_true, x_true = dm.trajectory_truth(*protocol.start, n)
+    torch.testing.assert_close(r.x_true, x_true)
+    t_model = torch.linspace(0, 0.98 * n, n, dtype=torch.float64) * model.frame_dt
+    z = rollouts.rollout(model, x_true[0], t_model, rtol=1e-9, atol=1e-9).y
+    torch.testing.assert_close(r.z_pred, z, rtol=0, atol=1e-7)
+    with torch.no_grad():
+        z_read = model.encode(r.x_pred)
+    torch.testing.assert_close(r.y_pred, apply_probe(r.probe, z_read))
+    e = 1.9 * (1 - torch.cos(r.y_pred[..., 0])) + r.y_pred[..., 1] ** 2
+    torch.testing.assert_close(r.e_pred, e)
+    same = rollouts.evaluate(model, dm, protocol, probe_model=model)[0]
+    assert same == pytest.approx(own, rel=1e-9)
+    # another model's encoder: the probe is fitted on its encodings and reads through it
+    torch.manual_seed(1)
+    other = AutoencoderHNN(input_dim=1568)
+    metrics, r2 = rollouts.evaluate(model, dm, protocol, probe_model=other)
+    x_train, qp_train = dm.probe_data()
+    with torch.no_grad():
+        probe, _ = fit_probe(other.encode(x_train), qp_train)
+        torch.testing.assert_close(r2.probe, probe)
+        torch.testing.assert_close(r2.y_pred, apply_probe(probe, other.encode(r2.x_pred)))
+    torch.testing.assert_close(r2.z_pred, r.z_pred)  # the model's own latent rollout
+    assert metrics["energy_mse"] != own["energy_mse"]
+    # the "own" setting ignores a probe model
+    ignored = rollouts.evaluate(model, dm, protocol.replace(probe_encoder="own"), other)[0]
+    assert ignored == pytest.approx(own, rel=1e-9)
 
 
 def test_test_command_under_both_inference_modes(fitted):

@@ -5,12 +5,21 @@ from __future__ import annotations
 import math
 import struct
 import zlib
+from pathlib import Path
 
 import pytest
 import torch
 
 from hnn_pl.nets.autoencoder import PixelDecoder, PixelEncoder
-from hnn_pl.render import GYM_CROP_X, GYM_CROP_Y, frame_strip, render_pendulum, save_png
+from hnn_pl.render import (
+    GYM_ARROW_RING,
+    GYM_CROP_X,
+    GYM_CROP_Y,
+    GYM_INTENSITY,
+    frame_strip,
+    render_pendulum,
+    save_png,
+)
 from hnn_pl.systems.pixel_pendulum import PixelPendulum, simulate_gym_pendulum
 
 
@@ -23,7 +32,10 @@ def _one_thread():
     torch.set_num_threads(threads)
 
 
-R, L, AXLE, I0 = 0.1, 1.0, 0.05, 0.5  # rod radius, length, axle radius, intensity
+R, L, AXLE, I0 = 0.1, 1.0, 0.05, GYM_INTENSITY  # rod radius, length, axle radius, intensity
+#: the plain scene: no arrow band, one sample per pixel, box filter (the old default)
+BOX = {"filter": "box", "supersample": 1, "arrow": False}
+PLAIN = {"arrow": False}
 PIX = (GYM_CROP_X[1] - GYM_CROP_X[0]) / 28  # world units per pixel of the default crop
 # capsule minus axle disc: area and distance of its centroid from the pivot along the rod
 AREA = 2 * R * L + math.pi * R**2 - math.pi * AXLE**2
@@ -85,7 +97,7 @@ def test_shapes_and_dtypes():
 @pytest.mark.parametrize("filt", ["box", "tent"])
 def test_values_background_and_peak(filt):
     for theta in [-1.2, -0.4, 0.0, 0.25, 0.9]:
-        f = render_pendulum(torch.tensor(theta, dtype=torch.float64), filter=filt)
+        f = render_pendulum(torch.tensor(theta, dtype=torch.float64), **{**BOX, "filter": filt})
         assert f.min() >= 0 and f.max() <= I0 + 1e-12
         d = distance_to_rod(theta)
         reach = 0.5 if filt == "box" else 1.0  # half-width of the filter, pixels
@@ -101,13 +113,13 @@ def test_values_background_and_peak(filt):
 
 def test_intensity_parameter_scales_and_axle_hole():
     th = torch.tensor(0.2, dtype=torch.float64)
-    torch.testing.assert_close(render_pendulum(th, intensity=1.0), 2 * render_pendulum(th))
-    whole, holed = render_pendulum(th, axle_radius=0.0), render_pendulum(th)
+    torch.testing.assert_close(render_pendulum(th, intensity=2 * I0), 2 * render_pendulum(th))
+    whole, holed = render_pendulum(th, axle_radius=0.0, **BOX), render_pendulum(th, **BOX)
     diff = whole - holed
     assert (diff >= -1e-12).all()
     # the hole has the axle's area (the 1-px ramp overestimates a 0.94-px disc by ~6 %)
     assert diff.sum() * PIX**2 == pytest.approx(I0 * math.pi * AXLE**2, rel=0.1)
-    kw = {"supersample": 8}
+    kw = {**BOX, "supersample": 8}
     fine = render_pendulum(th, axle_radius=0.0, **kw) - render_pendulum(th, **kw)
     assert fine.sum() * PIX**2 == pytest.approx(I0 * math.pi * AXLE**2, rel=0.02)
     # and sits at the pivot: pixel (i, j) = (4.44, 13.5) in index coordinates
@@ -119,7 +131,7 @@ def test_intensity_parameter_scales_and_axle_hole():
 def test_centroid_follows_geometry_in_default_crop():
     # the rod stays inside the crop for |θ| < 0.70 (tip + cap reaches x = 0.748)
     theta = torch.linspace(-0.65, 0.65, 27, dtype=torch.float64)
-    row, col = centroid(render_pendulum(theta))
+    row, col = centroid(render_pendulum(theta, **PLAIN))
     erow, ecol = expected_centroid(theta)
     assert (row - erow).abs().max() < 0.15
     assert (col - ecol).abs().max() < 0.15
@@ -130,7 +142,7 @@ def test_centroid_follows_geometry_in_default_crop():
 def test_centroid_over_half_circle_in_wide_window():
     win = {"x_range": (-1.3, 1.3), "y_range": (-0.3, 2.3)}
     theta = torch.linspace(-math.pi / 2 + 0.01, math.pi / 2 - 0.01, 41, dtype=torch.float64)
-    row, col = centroid(render_pendulum(theta, size=48, **win))
+    row, col = centroid(render_pendulum(theta, size=48, **win, **PLAIN))
     erow, ecol = expected_centroid(theta, size=48, **win)
     assert (row - erow).abs().max() < 0.15
     assert (col - ecol).abs().max() < 0.15
@@ -139,8 +151,8 @@ def test_centroid_over_half_circle_in_wide_window():
 def test_mirror_symmetry():
     theta = torch.linspace(0.0, math.pi, 13, dtype=torch.float64)
     for filt in ("box", "tent"):
-        a = render_pendulum(-theta, filter=filt)
-        b = render_pendulum(theta, filter=filt).flip(-1)
+        a = render_pendulum(-theta, **{**BOX, "filter": filt})
+        b = render_pendulum(theta, **{**BOX, "filter": filt}).flip(-1)
         torch.testing.assert_close(a, b, atol=1e-12, rtol=0)
     assert not torch.allclose(
         render_pendulum(torch.tensor(0.4)), render_pendulum(-torch.tensor(0.4))
@@ -152,33 +164,85 @@ def test_mirror_symmetry():
 )
 def test_total_intensity_is_rod_area(filt, k, rel):
     theta = torch.linspace(-0.65, 0.65, 53, dtype=torch.float64)
-    total = render_pendulum(theta, filter=filt, supersample=k).sum((-1, -2))
+    total = render_pendulum(theta, filter=filt, supersample=k, arrow=False).sum((-1, -2))
     expected = I0 * AREA / PIX**2  # ≈ 39.1
     assert ((total - expected).abs() / expected).max() < rel
 
 
 def test_supersampling_converges():
     theta = torch.linspace(-0.6, 0.6, 7, dtype=torch.float64)
-    exact = render_pendulum(theta, supersample=12)
-    err1 = (render_pendulum(theta) - exact).abs().max()  # measured 0.031
-    err4 = (render_pendulum(theta, supersample=4) - exact).abs().max()  # measured 0.005
+    exact = render_pendulum(theta, **{**BOX, "supersample": 12})
+    err1 = (render_pendulum(theta, **BOX) - exact).abs().max()  # measured 0.031
+    err4 = (render_pendulum(theta, **{**BOX, "supersample": 4}) - exact).abs().max()  # 0.005
     assert err4 < err1 and err4 < 0.02 * I0 and err1 < 0.1 * I0
     # the analytic tent ramp approximates the separable tent within ~0.1 · intensity
-    tent = render_pendulum(theta, filter="tent", supersample=8)
-    torch.testing.assert_close(render_pendulum(theta, filter="tent"), tent, atol=0.15 * I0, rtol=0)
+    tent = render_pendulum(theta, filter="tent", supersample=8, arrow=False)
+    tent1 = render_pendulum(theta, filter="tent", supersample=1, arrow=False)
+    torch.testing.assert_close(tent1, tent, atol=0.15 * I0, rtol=0)
     torch.testing.assert_close(tent.sum((-1, -2)), exact.sum((-1, -2)), rtol=2e-3, atol=0)
 
 
 def test_anti_aliasing_small_change_gives_small_nonzero_change():
     th = torch.tensor([0.3, 0.3 + 1e-3], dtype=torch.float64)
-    f = render_pendulum(th)
+    f = render_pendulum(th, **BOX)
     diff = (f[1] - f[0]).abs()
     # the tip moves 1e-3 units = 0.019 px; a pixel changes at most by I0 · 0.019 · √2
     assert 0 < diff.max() < 0.02
     assert (diff > 1e-6).sum() >= 10  # both long edges move, not a single snapped pixel
     # and the change is linear in the step (no snapping thresholds)
-    g = render_pendulum(torch.tensor([0.3, 0.3 + 2e-3], dtype=torch.float64))
+    g = render_pendulum(torch.tensor([0.3, 0.3 + 2e-3], dtype=torch.float64), **BOX)
     torch.testing.assert_close((g[1] - g[0]).abs().sum(), 2 * diff.sum(), rtol=0.05, atol=0)
+
+
+REFERENCE_FRAMES = Path(__file__).parent / "data" / "gym_pendulum_frames.npz"
+
+
+@pytest.fixture(scope="module")
+def reference_frames():
+    """The frames gym 0.12.1's own renderer made, processed as the reference did
+    (``tests/data/gym_pendulum_frames_SOURCE.md``): angles and frames on 0 … 128/255."""
+    import numpy as np
+
+    with np.load(REFERENCE_FRAMES) as d:
+        data = {k: torch.from_numpy(d[k]) for k in d.files}
+    for k in ("frames", "frames_with_arrow", "frames_without_arrow"):
+        data[k] = data[k].double() / 255
+    return data
+
+
+def test_reproduces_reference_frames(reference_frames):
+    """All 701 angles |θ| ≤ 0.7 of gym's real renderer, with its torque-arrow band."""
+    ref = reference_frames
+    assert ref["frames"].shape == (701, 28, 28) and ref["frames"].max() == I0
+    err = (render_pendulum(ref["theta"]) - ref["frames"]).abs()
+    assert err.mean() <= 1e-3 and err.max() <= 0.05  # measured 0.00048, 0.020
+    # the band and the filter are what it takes: the old renderer misses by far more
+    old = (render_pendulum(ref["theta"], **BOX) - ref["frames"]).abs()
+    assert old.mean() > 4 * err.mean() and old.max() > 0.25
+
+
+def test_reference_frames_with_and_without_arrow(reference_frames):
+    """gym drew the arrow at u = 0; the six frames made without it match ``arrow=False``."""
+    ref = reference_frames
+    th = ref["theta_arrow_check"]
+    for arrow, key in ((True, "frames_with_arrow"), (False, "frames_without_arrow")):
+        err = (render_pendulum(th, arrow=arrow) - ref[key]).abs()
+        assert err.mean() <= 1e-3 and err.max() <= 0.05, key
+    # the band: darker along the rod, nowhere brighter, at the ring's distance from the pivot
+    band = render_pendulum(th, arrow=False) - render_pendulum(th)
+    ref_band = ref["frames_without_arrow"] - ref["frames_with_arrow"]
+    assert (band >= -1e-12).all() and band.amax((-1, -2)).min() > 0.15  # 0.18 … 0.26
+    # measured 1.17–1.18 against 1.11–1.15: the drawn arrow is not quite a uniform ring
+    torch.testing.assert_close(band.sum((-1, -2)), ref_band.sum((-1, -2)), rtol=0.1, atol=0)
+    cx, cy, radius, band_width = GYM_ARROW_RING
+    # its total is the rod's crossing of the ring: width · band_width (the rod crosses
+    # the ring nearly at right angles), in pixels of the crop
+    total = band.sum((-1, -2)) * PIX**2 / I0
+    torch.testing.assert_close(total, torch.full_like(total, 2 * R * band_width), rtol=0.05, atol=0)
+    row, col = centroid(band)
+    pivot_row, pivot_col = -GYM_CROP_Y[0] / PIX - 0.5, 13.5
+    dist = torch.hypot(row - pivot_row, col - pivot_col) * PIX
+    assert ((dist - radius).abs() < 0.06).all()
 
 
 def _read_png(data: bytes):

@@ -99,13 +99,25 @@ def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
 def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     argv = ["--tasks", "pixel", "--seeds", "1", "--workers", "0", "--max-steps", "2"]
-    assert reproduce.main([*argv, "--out", str(tmp_path / "R.md")]) == 0
+    argv += ["--out", str(tmp_path / "R.md"), "--models-dir", str(tmp_path / "w")]
+    # the HNN first, the baseline in a later call: read through the HNN the first one kept
+    assert reproduce.main([*argv, "--models", "hnn"]) == 0
+    assert reproduce.main([*argv, "--models", "baseline", "--merge"]) == 0
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == [
+        "pixel_baseline_0_paper.pt",
+        "pixel_hnn_0_paper.pt",
+    ]
     runs = json.loads((tmp_path / "R.json").read_text())["runs"]
     assert sorted(r["model"] for r in runs) == ["baseline", "hnn"]
     for r in runs:
         assert r["reference"]["n_trajectories"] == 1 and r["clean"]["n_trajectories"] > 1
         assert math.isfinite(r["clean"]["pixel_mse"]) and math.isfinite(r["test_loss"])
-    assert "| pixel | first held-out" in (tmp_path / "R.md").read_text()
+    assert "| pixel | the reference's evaluation" in (tmp_path / "R.md").read_text()
+    # the baseline is read through its seed's HNN, as the reference did; its own kept
+    by = {r["model"]: r for r in runs}
+    assert by["hnn"]["reference_probe"] == "own" and by["baseline"]["reference_probe"] == "hnn"
+    own = by["baseline"]["reference_own_encoder"]["energy_mse"]
+    assert math.isfinite(own) and own != by["baseline"]["reference"]["energy_mse"]
 
 
 def test_fast_recipe_records_time_to_accuracy(tmp_path, monkeypatch):
