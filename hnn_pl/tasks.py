@@ -27,6 +27,16 @@ class Published(NamedTuple):
     energy_mse_pm: float
 
 
+class PaperMotion(NamedTuple):
+    """The paper recipe's HNN on the clean protocol, median over seeds: the motion a
+    fast recipe must match (the state half of time to accuracy). ``source``: the
+    run that measured it."""
+
+    state_mse: float
+    field_error: float
+    source: str
+
+
 @dataclass(frozen=True)
 class Task:
     """One experiment of the paper.
@@ -45,6 +55,9 @@ class Task:
         cost: relative training time (``reproduce`` starts the longest first).
         tta_every: recipe → optimiser steps between time-to-accuracy checks.
         models: the models with bundled configs (``reproduce`` trains these).
+        paper_motion: the paper recipe's HNN medians on the clean protocol
+            (:class:`PaperMotion`), the state target of
+            :class:`~hnn_pl.callbacks.TimeToAccuracy`; ``None``: no state target.
     """
 
     name: str
@@ -57,6 +70,7 @@ class Task:
     notes: dict[str, str] = field(default_factory=dict)
     tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10})
     models: tuple[str, ...] = ("baseline", "hnn")
+    paper_motion: PaperMotion | None = None
 
     def config(self, model: str = "hnn", recipe: str = "paper") -> str:
         """The bundled config's file name, e.g. ``spring_fast_baseline.yaml``."""
