@@ -252,7 +252,8 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         "`y` of the held-out trajectories (`hnn_pl.rollouts.field_error`; the real "
         "pendulum's `f` is the recording's central differences; pixel models: not "
         "applicable, their latent field has no true counterpart); valid prediction time "
-        "as above (median, and the smallest over seeds). Median (worst) over seeds. "
+        "as above (median, and the smallest over seeds). Median (worst) over the seeds "
+        "that report each number (runs older than the field error have none). "
         "Target: the paper recipe's HNN medians (state MSE / field error) from "
         "`hnn_pl.tasks`; the state MSE target is the state half of time to accuracy.",
         "",
@@ -269,7 +270,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         pixel = tasks.get(row["task"]).kind == "pixel"
         field = "n/a" if pixel else _fmt(*row["clean_field"])
         paper = tasks.get(row["task"]).paper_motion
-        target = "—" if paper is None else f"{paper.state_mse:.3g} / {paper.field_error:.3g}"
+        target = "—" if paper is None else f"{paper.state_mse:.3g} / {_fmt(paper.field_error)}"
         used = sorted({r.get("tta_state_target", math.inf) for r in runs})
         used = ", ".join("none" if not math.isfinite(u) else f"{u:.3g}" for u in used)
         lines.append(
