@@ -9,7 +9,8 @@ Trajectories are time first, ``(T, B, D)``, as :func:`hnn_pl.odeint` returns the
 Duck-typed, public attributes only. A model: ``field`` (a module with
 ``vector_field(t, y)`` and, for an HNN, ``hamiltonian(y)``) or is one itself; pixel
 models also ``encode``, ``decode``, ``frame_dt``. A DataModule:
-``rollout_target(t_end, n_points)``, ``energy(y)``, ``reference_inputs(n)``; pixel
+``rollout_target(t_end, n_points)``, ``energy(y)``, ``reference_inputs(n)``, optionally
+``true_field(t, y)`` (the true ``dy/dt`` at held-out states, for the field error); pixel
 ones also ``rollout_truth``, ``probe_data(n)``, ``canonical``, ``canonical_energy``.
 """
 
@@ -37,7 +38,9 @@ class Rollout:
     (T, B, 1568)`` frame pairs, ``probe (L + 1, 2)`` with ``(q, p) ≈ [z, 1] @ probe``
     and its training residual ``probe_mse``. ``status (B,)``: each row's
     :class:`hnn_pl.integrate.Status` (rows that diverged are NaN after their stop).
-    ``floors``: the true system's own errors under the protocol (:func:`error_floors`)."""
+    ``floors``: the true system's own errors under the protocol (:func:`error_floors`).
+    ``f_true``/``f_pred (T, B, D)``: the true field ``dm.true_field(t, y_true)`` and the
+    model's ``f_θ(y_true)`` on the true states (state models whose data gives one)."""
 
     t: Tensor
     y_true: Tensor
@@ -54,6 +57,8 @@ class Rollout:
     probe_mse: Tensor | float = 0.0
     status: Tensor | None = None
     floors: dict[str, Tensor] | None = None
+    f_true: Tensor | None = None
+    f_pred: Tensor | None = None
 
     @property
     def is_pixel(self) -> bool:
@@ -62,7 +67,7 @@ class Rollout:
     def rows(self, keep: Tensor) -> Rollout:
         """The rollout of the rows ``keep (B,)`` (bool) only."""
         per_row = ("y_true", "y_pred", "e_true", "e_pred", "h_pred")
-        per_row += ("z_true", "z_pred", "x_true", "x_pred")
+        per_row += ("z_true", "z_pred", "x_true", "x_pred", "f_true", "f_pred")
         picked = {k: getattr(self, k)[:, keep] for k in per_row if getattr(self, k) is not None}
         status = None if self.status is None else self.status[keep]
         floors = None if self.floors is None else {k: v[keep] for k, v in self.floors.items()}
@@ -180,7 +185,9 @@ def rollout(
     return out
 
 
-def run(model: Any, dm: Any, protocol: Protocol, probe_model: Any = None) -> Rollout:
+def run(
+    model: Any, dm: Any, protocol: Protocol, probe_model: Any = None, floors: bool = True
+) -> Rollout:
     """Roll ``model`` out from ``dm``'s held-out starts under ``protocol``.
 
     State models: starts and truth from ``dm.rollout_target(t_end, n_points)``.
@@ -193,6 +200,8 @@ def run(model: Any, dm: Any, protocol: Protocol, probe_model: Any = None) -> Rol
     frames through ``probe_model``'s encoder (the reference's evaluation of the
     baseline through the HNN's encoder). ``protocol.start``, ``model_t_end``,
     ``energy_coef``, ``reencode``: see :class:`~hnn_pl.protocols.Protocol`.
+    ``floors=False`` skips the state tasks' :func:`error_floors` (the true system's own
+    rollouts; time-to-accuracy checks need the model's errors only).
     The models are put in eval mode and restored.
     """
     reader = model if probe_model is None or protocol.probe_encoder == "own" else probe_model
@@ -203,7 +212,7 @@ def run(model: Any, dm: Any, protocol: Protocol, probe_model: Any = None) -> Rol
         with torch.no_grad():
             if is_pixel_model(model):
                 return _run_pixel(model, dm, protocol, reader)
-            return _run_state(model, dm, protocol)
+            return _run_state(model, dm, protocol, floors)
     finally:
         model.train(was_training[0])
         reader.train(was_training[1])
@@ -214,7 +223,7 @@ def _device(model: Any) -> torch.device:
     return param.device if param is not None else torch.device("cpu")
 
 
-def _run_state(model: Any, dm: Any, p: Protocol) -> Rollout:
+def _run_state(model: Any, dm: Any, p: Protocol, floors: bool = True) -> Rollout:
     device = _device(model)
     t, y_true = dm.rollout_target(p.t_end, p.n_points)
     y_true = y_true[:, : p.max_starts].to(device)
@@ -228,7 +237,11 @@ def _run_state(model: Any, dm: Any, p: Protocol) -> Rollout:
     r.h_pred = _learned_h(field, y_pred)
     if r.h_pred is not None:
         r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
-    r.floors = error_floors(dm, r.t, y_true, p)
+    if floors:
+        r.floors = error_floors(dm, r.t, y_true, p)
+    if callable(getattr(dm, "true_field", None)):
+        r.f_true = dm.true_field(r.t, y_true).to(y_pred)
+        r.f_pred = field.vector_field(None, y_true.flatten(0, 1)).reshape(y_true.shape)
     return r
 
 
@@ -370,6 +383,18 @@ def valid_time(r: Rollout, threshold: float = 0.025) -> Tensor:
     return r.t[first] - r.t[0]
 
 
+def field_error(r: Rollout) -> Tensor:
+    """Relative field error on the true states, one number over all of them:
+    ``sqrt(Σ_{t,b} ‖f_θ(y_true) − f(y_true)‖²) / sqrt(Σ_{t,b} ‖f(y_true)‖²)`` over the
+    ``(T, B, D)`` states of the held-out trajectories (a norm ratio over the whole set,
+    so states where ``f`` is near zero cannot dominate it as a per-state ratio would);
+    0 for the true field, 1 for ``f_θ = 0``."""
+    den = (r.f_true**2).sum()
+    return ((r.f_pred - r.f_true) ** 2).sum().sqrt() / den.sqrt().clamp_min(
+        torch.finfo(den.dtype).tiny
+    )
+
+
 def energy_drift_slope(r: Rollout, energy: Tensor | None = None) -> Tensor:
     """Least-squares slope in time of ``mean_b (E(t) − E(0)) / |E_true(0)|``, ``E`` the
     predicted energy ``r.e_pred (T, B)`` unless given: the relative drift per unit time
@@ -390,6 +415,9 @@ def score(r: Rollout) -> dict[str, float]:
     - ``energy_drift_slope``: see :func:`energy_drift_slope`; ``true_energy_drift_slope``
       the truth's (0 for a conservative system, negative for measured friction);
     - ``conserved_drift`` (HNN): see :func:`conserved_drift`;
+    - ``field_error`` (state models whose data gives ``true_field``): see
+      :func:`field_error`, over every row (it is read on the true states, so a row's
+      divergence does not change it); pixel models have no true field on their latents;
     - ``diverged_rows``: how many rows stopped early (the others are scored; all NaN
       if none is left);
     - state tasks: ``floor_integrator_energy_mse``, ``floor_chaos_energy_mse`` and
@@ -399,13 +427,14 @@ def score(r: Rollout) -> dict[str, float]:
       (integrated vs encoded true pairs) and ``probe_mse``.
     """
     diverged = 0 if r.status is None else int((r.status != 0).sum())
+    on_truth = {} if r.f_true is None else {"field_error": float(field_error(r))}
     if diverged:
         r = r.rows(r.status == 0)
     if r.y_true.shape[1] == 0:
         names = ["energy_mse", "state_mse", "motion_error", "valid_time", "energy_drift_slope"]
         names += ["true_energy_drift_slope"]
         names += ["conserved_drift"] * (r.h_pred is not None)
-        return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged)}
+        return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged), **on_truth}
     out = {
         "energy_mse": energy_mse_per_trajectory(r).mean(),
         "state_mse": ((r.y_true - r.y_pred) ** 2).mean(),
@@ -417,6 +446,7 @@ def score(r: Rollout) -> dict[str, float]:
     }
     if r.h_pred is not None:
         out["conserved_drift"] = conserved_drift(r)
+    out.update(on_truth)
     for key, value in (r.floors or {}).items():
         name, kind = key.rsplit("_", 1)
         out[f"floor_{name}_{kind}_mse"] = value.mean()

@@ -101,6 +101,31 @@ def test_clean_protocol_scores_the_true_field_near_zero(spring_dm):
     assert good["n_trajectories"] == 25 and good["t_end"] == 20.0
 
 
+def test_field_error_is_zero_for_the_true_field_and_the_damping_share_otherwise(spring_dm):
+    """H = q² + p²: f = (2p, −2q); damping c on p adds (0, −c·p), so over the true
+    states ‖f_θ − f‖² / ‖f‖² = c² Σp² / Σ 4(q² + p²)."""
+    clean = tasks.get("spring").clean
+    good = evaluate_protocol(TrueField(spring_dm.system), spring_dm, clean)
+    bad = evaluate_protocol(TrueField(spring_dm.system, 0.05), spring_dm, clean)
+    _, y = spring_dm.rollout_target(clean.t_end, clean.n_points)
+    expected = 0.05 * float((y[..., 1] ** 2).sum().sqrt() / (4 * (y**2).sum()).sqrt())
+    assert good["field_error"] < 1e-12
+    assert bad["field_error"] == pytest.approx(expected, rel=1e-9)
+
+
+def test_real_pendulum_field_error_reads_the_recordings_central_differences(tmp_path):
+    """On the evenly spaced interior, ``true_field`` is (y[i+1] − y[i−1]) / 2Δt."""
+    dm = RealPendulumData(cache_dir=str(tmp_path), dtype="float64")
+    dm.setup()
+    t, y = dm.rollout_target()
+    f = dm.true_field(t, y)
+    gaps = t[1:] - t[:-1]
+    i = int(torch.nonzero((gaps[1:] - gaps[:-1]).abs() < 1e-9)[5]) + 1
+    torch.testing.assert_close(f[i], (y[i + 1] - y[i - 1]) / float(t[i + 1] - t[i - 1]))
+    clean = evaluate_protocol(TrueField(dm.system), dm, tasks.get("real_pendulum").clean)
+    assert 0 < clean["field_error"] < math.inf
+
+
 def test_real_pendulum_protocols_use_the_measured_segment(tmp_path):
     dm = RealPendulumData(cache_dir=str(tmp_path), dtype="float64")
     dm.setup()

@@ -133,10 +133,23 @@ def test_time_to_accuracy_records_the_first_step_at_the_target_and_can_stop(tmp_
     _fit(_model(), dm, 9, [never])
     assert never.reached is None and [h[0] for h in never.history] == [3, 6, 9]
     assert all(h[2] > 0 for h in never.history)
-    at_once = TimeToAccuracy("spring", target=1e9, every_n_steps=3, stop=True, max_motion_error=9)
+    at_once = TimeToAccuracy(
+        "spring", target=1e9, every_n_steps=3, stop=True, max_motion_error=9, state_target=1e9
+    )
     trainer = _fit(_model(), dm, 9, [at_once])
     assert trainer.global_step == 3 and at_once.reached["step"] == 3
     assert 0 < at_once.reached["seconds"] <= at_once.reached["wall_seconds"]
+    assert 0 < at_once.reached["state_mse"] < 1e9
+
+
+def test_time_to_accuracy_needs_the_state_target_too(tmp_path):
+    """Energy and motion pass (targets 1e9), the clean state MSE cannot reach 1e-30."""
+    strict = TimeToAccuracy(
+        "spring", target=1e9, every_n_steps=3, max_motion_error=9, state_target=1e-30
+    )
+    _fit(_model(), _dm(tmp_path), 6, [strict])
+    assert strict.reached is None and [h[0] for h in strict.history] == [3, 6]
+    assert all(1e-30 < h[4] < math.inf for h in strict.history)
 
 
 def test_time_to_accuracy_refuses_a_field_that_does_not_move(tmp_path):
@@ -148,7 +161,7 @@ def test_time_to_accuracy_refuses_a_field_that_does_not_move(tmp_path):
         for p in model.field.parameters():
             p.mul_(1e-6)
     _fit(model, dm, 1, [still])
-    (_, _, energy, motion), *_ = still.history
+    (_, _, energy, motion, _), *_ = still.history
     assert energy < 1e-9 and motion == pytest.approx(1.0, abs=1e-3) and still.reached is None
 
 

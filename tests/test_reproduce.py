@@ -41,15 +41,18 @@ def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch, capfd
         ):
             assert math.isfinite(value) and value >= 0
         assert ("conserved_drift" in r["clean"]) == (r["model"] == "hnn")
-    results, long, ratios, per_seed, protocols = md.split("\n## ")[:5]
+    results, long, motion, ratios, per_seed, protocols = md.split("\n## ")[:6]
     names = ("| spring |", "| real_pendulum |")
     assert sum(line.startswith(names) for line in results.splitlines()) == 4
     assert sum(line.startswith(names) for line in ratios.splitlines()) == 2
     assert long.startswith("Long horizons")
     assert sum(line.startswith(names) for line in long.splitlines()) == 4
+    assert motion.startswith("Motion")
+    assert sum(line.startswith(names) for line in motion.splitlines()) == 4
     for r in data["runs"]:
         clean = r["clean"]
         assert clean["floor_chaos_energy_mse"] >= 0 and clean["valid_time"] > 0
+        assert 0 < clean["field_error"] < math.inf and clean["state_mse"] > 0
     assert protocols.startswith("Protocols")
     assert sum(line.startswith(names) for line in per_seed.splitlines()) == 4
     assert "3.593e-02" in md  # the published spring HNN test loss beside ours

@@ -305,6 +305,14 @@ class TrajectoryDataModule(L.LightningDataModule):
             raise NotImplementedError(f"{type(self).__name__} defines no energy")
         return self.system.energy(y)
 
+    def true_field(self, t: Tensor, y: Tensor) -> Tensor:
+        """The true ``dy/dt`` at held-out states ``y (T, B, D)`` at times ``t (T,)``: the
+        system's field (the field error of :mod:`hnn_pl.rollouts` compares a model's
+        with it)."""
+        if self.system is None:
+            raise NotImplementedError(f"{type(self).__name__} defines no true field")
+        return self.system.vector_field(t, y)
+
     def reference_inputs(self, n: int | None = None) -> Tensor:
         """The first ``n`` training inputs ``(n, D)`` (all for ``None``): the states over
         which the spread of a learned ``H_θ`` is measured."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch
 from torch import Tensor
 
 from hnn_pl.data.base import TrajectoryDataModule
@@ -90,3 +91,10 @@ class RealPendulumData(TrajectoryDataModule):
         if t_end is not None:
             raise ValueError("the real pendulum has no ground truth off the recording: t_end: null")
         return self.test_t, self.test_y
+
+    def true_field(self, t: Tensor, y: Tensor) -> Tensor:
+        """The measured ``dy/dt`` along a recorded segment ``y (T, B, D)`` at ``t (T,)``:
+        second-order central differences with the real gaps (one-sided at the ends,
+        ``torch.gradient``); the fitted energy's conservative field would hide the
+        friction the recording has."""
+        return torch.gradient(y, spacing=(t.to(y.dtype),), dim=0)[0]
