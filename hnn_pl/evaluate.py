@@ -188,12 +188,17 @@ def evaluate_protocol(model: Any, dm: Any, protocol: Protocol) -> dict[str, floa
 
 def evaluate_state(task: tasks.Task, model: Any, dm: Any) -> dict[str, Any]:
     """Losses over each split and both protocols of a state task: ``{"train_loss",
-    "train_loss_pm", "test_loss", "test_loss_pm", "reference": {…}, "clean": {…}}``."""
+    "train_loss_pm", "test_loss", "test_loss_pm", "reference": {…}, "clean": {…}}``,
+    and ``"independent": {…}`` (the true-energy evaluation) where the task has one."""
     dm.setup("test")
     field = getattr(model, "field", model)
     train, train_pm = split_losses(field, dm.x_train, dm.dx_train)
     test, test_pm = split_losses(field, dm.x_test, dm.dx_test)
+    extra = {}
+    if task.independent is not None:
+        extra["independent"] = evaluate_reference(model, dm, task.name, task.independent)
     return {
+        **extra,
         "train_loss": train,
         "train_loss_pm": train_pm,
         "test_loss": test,

@@ -10,7 +10,6 @@ from torchmetrics import MeanSquaredError
 
 from hnn_pl.models.recipe import RecipeModel
 
-
 OBJECTIVES = ("derivative", "trajectory")
 LEARNED_STATES = ("none", "sample", "trajectory")
 
