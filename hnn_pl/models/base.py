@@ -216,9 +216,12 @@ class DynamicsModel(RecipeModel):
             traj = torch.searchsorted(self.traj_first, index[:, 0].contiguous(), right=True) - 1
             first = self.traj_first[traj]
             times = torch.cat([self.obs_t_train[first].to(t.dtype)[:, None], t], 1)
-            lead = max(1, int((index[:, 0] - first).max())) * self.substeps
-            n = torch.tensor([lead] + [self.substeps] * (t.shape[1] - 1))
-            pred = self.integrate_windows(self.states[traj], times, n)[:, 1:]
+            lead = int((index[:, 0] - first).max()) * self.substeps
+            if lead:
+                n = torch.tensor([lead] + [self.substeps] * (t.shape[1] - 1))
+                pred = self.integrate_windows(self.states[traj], times, n)[:, 1:]
+            else:  # every window starts its trajectory
+                pred = self.integrate_windows(self.states[traj], t)
         fit = nn.functional.mse_loss(pred[:, 1:], y[:, 1:])
         if self.states is None:
             return {"loss": fit}
@@ -238,7 +241,7 @@ class DynamicsModel(RecipeModel):
         batch = self._batch(batch)
         if self.objective == "trajectory":
             y, t = batch[0], batch[1]
-            return self.integrate_windows(y[:, 0], t)[:, 1:], y[:, 1:]
+            return self.integrate_windows(y[:, 0], t)[:, 1:].reshape(-1), y[:, 1:].reshape(-1)
         return self(batch[0]), batch[1]
 
     def validation_step(self, batch: tuple[Tensor, ...], batch_idx: int) -> None:
