@@ -19,6 +19,7 @@ _LAZY = {
     "DynamicsModel": "hnn_pl.models",
     "SimulatedData": "hnn_pl.data",
     "TrajectoryDataModule": "hnn_pl.data",
+    "RecordingData": "hnn_pl.data",
     "RolloutCallback": "hnn_pl.callbacks",
     "AutoencoderHNN": "hnn_pl.models",
     "AutoencoderBaseline": "hnn_pl.models",

@@ -181,8 +181,9 @@ def evaluate_protocol(model: Any, dm: Any, protocol: Protocol) -> dict[str, floa
     """:func:`hnn_pl.rollouts.score`'s metrics under ``protocol`` plus the grouped
     ``energy_mse_pm``, ``n_trajectories`` and ``t_end``."""
     metrics, r = rollouts.evaluate(model, dm, protocol)
-    per_traj = rollouts.energy_mse_per_trajectory(r.rows(r.status == 0))
-    metrics["energy_mse_pm"] = grouped_mean(per_traj, protocol.n_groups)[1]
+    if r.e_true is not None:
+        per_traj = rollouts.energy_mse_per_trajectory(r.rows(r.status == 0))
+        metrics["energy_mse_pm"] = grouped_mean(per_traj, protocol.n_groups)[1]
     return {**metrics, "n_trajectories": r.y_true.shape[1], "t_end": float(r.t[-1])}
 
 

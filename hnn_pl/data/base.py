@@ -355,6 +355,12 @@ class TrajectoryDataModule(L.LightningDataModule):
         rank, world = data_parallel_rank(self.trainer)
         return {"rank": rank, "world_size": world}
 
+    @property
+    def has_energy(self) -> bool:
+        """Whether :meth:`energy` is defined (``system`` set): else rollouts skip the
+        energy metrics."""
+        return self.system is not None
+
     def energy(self, y: Tensor) -> Tensor:
         """The physical energy of states ``(..., D) -> (...)`` that metrics compare."""
         if self.system is None:
