@@ -11,6 +11,7 @@ from test_bad_input import FIT, _fails
 from torch import nn
 
 from hnn_pl import rollouts
+from hnn_pl.cli import cli_main
 from hnn_pl.data import RealPendulumData, RecordingData, load_recording
 from hnn_pl.protocols import Protocol
 from hnn_pl.systems import MassSpring
@@ -268,3 +269,35 @@ def test_the_real_pendulum_is_the_shipped_recording(tmp_path):
     assert torch.equal(central.obs_t_test, t[445:555])
     assert torch.bincount(central.obs_traj_train).tolist() == [445]  # 555 alone: dropped
     assert math.isclose(float(central.test_t[0]), 81.0 + 1 / 6, rel_tol=1e-12)
+
+
+def test_a_recording_thinned_and_windowed(tmp_path):
+    path = _write(tmp_path / "s.npz", _recorded_springs(lengths=(12, 9, 15)))
+    dm = RecordingData(str(path), test_fraction=0.34, window=3, keep_fraction=0.5)
+    dm.setup()
+    rec = load_recording(path)
+    assert torch.bincount(dm.obs_traj_train).tolist() == [5, 8]  # ⌈9/2⌉, ⌈15/2⌉
+    assert torch.bincount(dm.obs_traj_test).tolist() == [6]
+    y, t, index = next(iter(dm.train_dataloader()))
+    assert y.shape == (3 + 6, 3, 2) and (t.diff(dim=1) > 0).all()
+    kept = torch.isin(rec.t.float(), dm.obs_t_train)
+    assert int(kept.sum()) == 13
+
+
+def test_the_cli_fits_a_recording(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    path = _write(tmp_path / "s.csv", _recorded_springs())
+    config = tmp_path / "recording.yaml"
+    config.write_text(
+        "data:\n  class_path: hnn_pl.data.RecordingData\n  init_args:\n"
+        f"    path: {path}\n    test_fraction: 0.34\n    system: null\n"
+        "trainer:\n  callbacks:\n    - class_path: hnn_pl.callbacks.RolloutCallback\n"
+        "      init_args: {every_n_epochs: 0, overrides: {t_end: null, n_points: null}}\n"
+    )
+    args = ["--config=spring_fast.yaml", f"--config={config}", "--trainer.max_steps=2"]
+    args += ["--trainer.logger=false", "--trainer.enable_checkpointing=false"]
+    cli = cli_main([*args, "--trainer.enable_progress_bar=false"], run=False, save_config=False)
+    cli.trainer.fit(cli.model, cli.datamodule)
+    (logged,) = cli.trainer.test(cli.model, cli.datamodule, verbose=False)
+    assert "rollout/state_mse" in logged and "rollout/energy_mse" not in logged
+    assert math.isfinite(logged["rollout/state_mse"]) and math.isfinite(logged["test/loss"])

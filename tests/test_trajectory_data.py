@@ -162,3 +162,13 @@ def test_a_window_longer_than_every_trajectory_is_refused(tmp_path):
 )
 def test_bad_trajectory_options_fail_with_one_line(option, expected, capsys, monkeypatch, tmp_path):
     assert expected in _fails([*FIT, option], capsys, monkeypatch, tmp_path)
+
+
+def test_thinning_uneven_trajectories_keeps_its_share_of_each():
+    traj = torch.tensor([0] * 3 + [1] * 10 + [2] * 2 + [3] * 7)
+    g = torch.Generator().manual_seed(0)
+    rows = thin(traj, 0.5, g)
+    assert torch.bincount(traj[rows]).tolist() == [2, 5, 2, 4]
+    assert (rows.diff() > 0).all()  # kept in their order: times stay sorted
+    assert torch.equal(rows, thin(traj, 0.5, torch.Generator().manual_seed(0)))
+    assert torch.equal(thin(traj, 1.0, g), torch.arange(len(traj)))
