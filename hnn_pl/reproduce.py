@@ -82,6 +82,7 @@ def run_one(
             eval_s=time.perf_counter() - t1,
             steps=cli.trainer.global_step,
             tta=tta.reached,
+            tta_history=tta.history,
         )
     except Exception:  # noqa: BLE001 - one failed run must not lose the others
         record["error"] = traceback.format_exc()

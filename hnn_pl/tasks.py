@@ -59,7 +59,7 @@ class Task:
     clean: Protocol
     cost: float = 1.0
     notes: dict[str, str] = field(default_factory=dict)
-    tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10, "traj": 10})
+    tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10, "traj": 50})
     models: tuple[str, ...] = ("baseline", "hnn")
     traj_models: tuple[str, ...] = ()
     independent: ReferenceProtocol | None = None
@@ -155,7 +155,7 @@ TASKS: dict[str, Task] = {
             ReferenceProtocol(starts="system", t_end=25.0, n_points=500, rtol=1e-9),
             Protocol(t_end=20.0, max_starts=100),
             cost=4.0,
-            tta_every={"paper": 250, "fast": 25, "traj": 25},
+            tta_every={"paper": 250, "fast": 25, "traj": 100},
             traj_models=("baseline", "hnn"),
         ),
         Task(
