@@ -55,11 +55,6 @@ class DynamicsModel(RecipeModel):
         substeps: integration steps between consecutive samples.
         learned_states: ``"none"``, ``"sample"`` or ``"trajectory"``.
         state_weight: weight of the learned states' fit to the observations.
-
-    Args:
-        input_dim: ``2k``, the state size (linked from the DataModule by the CLI).
-        hidden_dim: ``h``, the MLP's width (200 in the paper).
-        n_hidden: number of hidden layers (2).
         lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip,
             on_nonfinite: the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`;
             the paper's: Adam, constant rate).
@@ -208,6 +203,11 @@ class DynamicsModel(RecipeModel):
         """The trajectory objective of one window batch (class docstring): ``{"loss",
         "fit"}`` and, with learned states, ``"anchor"`` (their fit to the observations)."""
         y, t, index = batch
+        if self.states is None and self.learned_states != "none":
+            raise RuntimeError(
+                f"learned_states={self.learned_states!r} has no states: train with a DataModule "
+                "that serves obs_*_train (set up at fit), or call init_states(...) first"
+            )
         if self.states is None:
             pred = self.integrate_windows(y[:, 0], t)
         elif self.learned_states == "sample":
