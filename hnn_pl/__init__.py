@@ -12,6 +12,7 @@ __version__ = "0.1.0"
 
 _LAZY = {
     "odeint": "hnn_pl.integrate",
+    "odeint_windows": "hnn_pl.integrate",
     "METHODS": "hnn_pl.integrate",
     "HNN": "hnn_pl.models",
     "Baseline": "hnn_pl.models",
