@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from hnn_pl.data.recording import Recording, RecordingData, load_recording
+from hnn_pl.data.recording import Recording, RecordingData, differences, load_recording
 from hnn_pl.systems.real_pendulum import RealPendulum, load_real_pendulum
 
 #: the measured trajectory as a recording (:mod:`hnn_pl.data.recording`)
@@ -63,13 +63,10 @@ class RealPendulumData(RecordingData):
         window: int | None = None,
         keep_fraction: float = 1.0,
     ) -> None:
-        if differences not in ("forward", "central"):
-            raise ValueError(f"differences must be 'forward' or 'central', got {differences!r}")
         self.test_start, self.test_stop = test_start, test_stop
         super().__init__(
             path,
             RealPendulum(),
-            test_segment=None,
             differences=differences,
             batch_size=batch_size,
             full_batch_steps=full_batch_steps,
@@ -101,11 +98,7 @@ class RealPendulumData(RecordingData):
 
     def generate(self) -> dict[str, Tensor]:
         data = super().generate()
-        t, y = self.recording.t, self.recording.y
-        if self.differences == "central":
-            x, dx = y[1:-1], (y[2:] - y[:-2]) / (t[2:] - t[:-2])[:, None]
-        else:
-            x, dx = y[:-1], (y[1:] - y[:-1]) / (t[1:] - t[:-1])[:, None]
+        x, dx = differences(self.recording.t, self.recording.y, self.differences)
         a, b = self.test_start, self.test_stop
         train = list(range(a)) + list(range(b, len(x)))
         pairs = {"x_train": x[train], "dx_train": dx[train], "x_test": x[a:b], "dx_test": dx[a:b]}
