@@ -112,10 +112,10 @@ def main(topics: dict, default_out: Path | None) -> None:
         print(f"## {topics[name].TITLE}\n\n{body}\n", flush=True)
 
 
-def quiet_cli(config: str, seed: int, threads: int = 1, max_steps: int | None = None):
+def quiet_cli(config: str, seed: int, threads: int = 1, max_steps: int | None = None, extra=()):
     """A bundled config as ``fit`` runs it, minus logger, checkpoints, progress bar,
     callbacks and validation, built but not run: ``cli.trainer.fit(cli.model,
-    cli.datamodule)`` trains it."""
+    cli.datamodule)`` trains it. ``extra``: more CLI arguments (overrides)."""
     from hnn_pl.cli import cli_main
 
     args = [f"--config={config}", f"--seed_everything={seed}", f"--threads={threads}"]
@@ -123,4 +123,4 @@ def quiet_cli(config: str, seed: int, threads: int = 1, max_steps: int | None = 
     args += ["--trainer.enable_progress_bar=false", "--trainer.enable_model_summary=false"]
     args += ["--trainer.callbacks=[]", "--trainer.limit_val_batches=0"]
     args += [f"--trainer.max_steps={max_steps}"] if max_steps else []
-    return cli_main(args, run=False, save_config=False)
+    return cli_main(args + list(extra), run=False, save_config=False)

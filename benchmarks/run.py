@@ -11,6 +11,7 @@ import startup
 import symplectic
 import threads
 import training
+import trajectory
 import tta
 from common import REPORT, main
 
@@ -24,5 +25,6 @@ if __name__ == "__main__":
         "threads": threads,
         "symplectic": symplectic,
         "independent": independent,
+        "trajectory": trajectory,
     }
     main(topics, REPORT)

@@ -14,6 +14,7 @@ __version__ = "0.1.0"
 
 _LAZY = {
     "odeint": "hnn_pl.integrate",
+    "odeint_windows": "hnn_pl.integrate",
     "METHODS": "hnn_pl.integrate",
     "HNN": "hnn_pl.models",
     "Baseline": "hnn_pl.models",
@@ -21,6 +22,7 @@ _LAZY = {
     "DynamicsModel": "hnn_pl.models",
     "SimulatedData": "hnn_pl.data",
     "TrajectoryDataModule": "hnn_pl.data",
+    "RecordingData": "hnn_pl.data",
     "RolloutCallback": "hnn_pl.callbacks",
     "AutoencoderHNN": "hnn_pl.models",
     "AutoencoderBaseline": "hnn_pl.models",

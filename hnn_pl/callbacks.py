@@ -223,7 +223,7 @@ class RolloutWriter(BasePredictionWriter):
             energy = None
         else:
             t = torch.linspace(0.0, p.t_end or 1.0, p.n_points or 100, dtype=torch.float64)
-            energy = dm.energy
+            energy = dm.energy if getattr(dm, "has_energy", True) else None
         out = rollouts.rollout(pl_module, y0, t, dtype=p.dtype, energy=energy, **p.solver_kwargs())
         return out.as_dict()
 

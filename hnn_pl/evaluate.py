@@ -184,19 +184,25 @@ def evaluate_protocol(
     see :func:`hnn_pl.rollouts.run`) plus the grouped ``energy_mse_pm``,
     ``n_trajectories`` and ``t_end``."""
     metrics, r = rollouts.evaluate(model, dm, protocol, probe_model)
-    per_traj = rollouts.energy_mse_per_trajectory(r.rows(r.status == 0))
-    metrics["energy_mse_pm"] = grouped_mean(per_traj, protocol.n_groups)[1]
+    if r.e_true is not None:
+        per_traj = rollouts.energy_mse_per_trajectory(r.rows(r.status == 0))
+        metrics["energy_mse_pm"] = grouped_mean(per_traj, protocol.n_groups)[1]
     return {**metrics, "n_trajectories": r.y_true.shape[1], "t_end": float(r.t[-1])}
 
 
 def evaluate_state(task: tasks.Task, model: Any, dm: Any) -> dict[str, Any]:
     """Losses over each split and both protocols of a state task: ``{"train_loss",
-    "train_loss_pm", "test_loss", "test_loss_pm", "reference": {…}, "clean": {…}}``."""
+    "train_loss_pm", "test_loss", "test_loss_pm", "reference": {…}, "clean": {…}}``,
+    and ``"independent": {…}`` (the true-energy evaluation) where the task has one."""
     dm.setup("test")
     field = getattr(model, "field", model)
     train, train_pm = split_losses(field, dm.x_train, dm.dx_train)
     test, test_pm = split_losses(field, dm.x_test, dm.dx_test)
+    extra = {}
+    if task.independent is not None:
+        extra["independent"] = evaluate_reference(model, dm, task.name, task.independent)
     return {
+        **extra,
         "train_loss": train,
         "train_loss_pm": train_pm,
         "test_loss": test,

@@ -65,6 +65,8 @@ __all__ = [
     "Solution",
     "Status",
     "odeint",
+    "odeint_windows",
+    "WINDOW_METHODS",
     "scipy_fun",
     "scipy_odeint",
 ]
@@ -336,8 +338,11 @@ class ImplicitMidpoint(_FixedStep):
     def step(self, func, t, y, h, cache):
         k, h_prev, k_old, spacing = cache
         if k_old is not None:
-            k = torch.add(k, k - k_old, alpha=(h_prev + h) / (2 * spacing))
-        a = torch.add(y, k, alpha=h).abs_()
+            ratio = (h_prev + h) / (2 * spacing)
+            if isinstance(ratio, Tensor):  # per-row steps: a row at rest (h = 0) keeps k
+                ratio = torch.nan_to_num(ratio, nan=0.0, posinf=0.0)
+            k = _axpy(k, k - k_old, ratio)
+        a = _axpy(y, k, h).detach().abs_()
         floor = 8 * torch.finfo(y.dtype).eps
         if self.rtol >= floor and self.atol >= floor:
             tol = a.mul_(self.rtol / h).add_(self.atol / h)
@@ -346,12 +351,12 @@ class ImplicitMidpoint(_FixedStep):
         tm = t + h / 2
         done = ~self.rows.alive[:, None] if self.rows.any_stopped else None
         for _ in range(self.options["max_iters"]):
-            k_new = func(tm, torch.add(y, k, alpha=h / 2))
-            close = (k_new - k).abs_() <= tol
+            k_new = func(tm, _axpy(y, k, h / 2))
+            close = (k_new - k).detach().abs_() <= tol
             if done is None:  # no row has converged yet: all rows take the new iterate
                 k = k_new
                 if bool(close.all()):
-                    return torch.add(y, k, alpha=h), (k, h, cache[0], (h_prev + h) / 2)
+                    return _axpy(y, k, h), (k, h, cache[0], (h_prev + h) / 2)
                 ok = close.all(-1, keepdim=True)
                 if bool(ok.any()):
                     done = ok
@@ -359,14 +364,19 @@ class ImplicitMidpoint(_FixedStep):
             k = torch.where(done, k, k_new)
             done = done | close.all(-1, keepdim=True)
             if bool(done.all()):
-                return torch.add(y, k, alpha=h), (k, h, cache[0], (h_prev + h) / 2)
+                return _axpy(y, k, h), (k, h, cache[0], (h_prev + h) / 2)
         failed = ~done[:, 0] if done is not None else torch.ones_like(self.rows.alive)
         finite = torch.isfinite(k_new).all(-1)
-        t_fail = self.sign * (float(t) + h / 2)
+        t_fail = self.sign * float((t + h / 2).max())
         self.rows.stop(failed & finite, Status.NOT_CONVERGED, t_fail)
         self.rows.stop(failed, Status.DIVERGED, t_fail)
         k = torch.where(failed[:, None], 0.0, k)
-        return torch.add(y, k, alpha=h), (k, h, cache[0], (h_prev + h) / 2)
+        return _axpy(y, k, h), (k, h, cache[0], (h_prev + h) / 2)
+
+
+def _axpy(y: Tensor, x: Tensor, a: float | Tensor) -> Tensor:
+    """``y + a x`` for a float ``a`` or a per-row ``a (B, 1)``."""
+    return y + a * x if isinstance(a, Tensor) else torch.add(y, x, alpha=a)
 
 
 # Dormand-Prince 5(4): nodes, stage rows, 5th-order weights (row 7), error weights
@@ -744,6 +754,70 @@ def _finite_rows(solver: _Solver, func: Field, y0: Tensor, t: Tensor, t0: float)
 def _put_rows(y: Tensor, rows: Tensor, values: Tensor) -> Tensor:
     """``y (T, B, D)`` with the columns ``rows`` replaced by ``values (T, R, D)``."""
     return y.transpose(0, 1).index_put((rows,), values.transpose(0, 1)).transpose(0, 1)
+
+
+#: the fixed-step methods :func:`odeint_windows` accepts
+WINDOW_METHODS = ("euler", "rk4", "leapfrog", "implicit_midpoint")
+
+
+def odeint_windows(
+    func: Field,
+    y0: Tensor,
+    t: Tensor,
+    method: str = "rk4",
+    substeps: int | Tensor = 1,
+    rtol: float = 1e-7,
+    atol: float = 1e-9,
+    options: dict[str, Any] | None = None,
+) -> Tensor:
+    """Every row integrated to its own times in one batched, differentiable loop.
+
+    Row ``b`` starts at ``y0[b]`` at ``t[b, 0]`` and is read at ``t[b, 1:]``; the
+    interval ``[t[b, j], t[b, j+1]]`` is cut into ``n_j`` equal steps of the row's
+    own size ``h_bj = (t[b, j+1] − t[b, j]) / n_j`` (``n_j`` = ``substeps``, or
+    ``substeps[j]`` for a ``(K−1,)`` integer tensor), so uneven and per-row spacings
+    land exactly on the samples. The loop runs over the ``Σ n_j`` steps, never over
+    rows; gradients flow to ``y0`` and to ``func``'s parameters (discretise, then
+    optimise), ``t`` is data. A zero-length interval is a step of size 0 (the state
+    stays). No containment: a diverging row gives non-finite states; an
+    ``implicit_midpoint`` iteration that fails to converge raises ``RuntimeError``.
+
+    Args:
+        func: ``func(t, y)``, ``(B, D) -> (B, D)``; ``t`` arrives as ``(B, 1)``.
+        y0: ``(B, D)`` states at ``t[:, 0]``.
+        t: ``(B, K)`` non-decreasing times per row, ``K >= 1``.
+        method: one of :data:`WINDOW_METHODS` (a fixed-step class of :data:`METHODS`).
+        substeps: steps per interval (``int >= 1``, or a ``(K−1,)`` tensor of them).
+        rtol, atol, options: as :func:`odeint` (``implicit_midpoint``'s iteration;
+            ``leapfrog``'s ``check_separable`` defaults to ``False`` here).
+
+    Returns:
+        ``(B, K, D)``, ``out[:, 0] == y0``.
+    """
+    if method not in WINDOW_METHODS:
+        raise ValueError(f"odeint_windows: method must be one of {WINDOW_METHODS}, got {method!r}")
+    if y0.ndim != 2 or t.ndim != 2 or t.shape[0] != y0.shape[0]:
+        raise ValueError(
+            f"odeint_windows needs y0 (B, D) and t (B, K), got {tuple(y0.shape)}, {tuple(t.shape)}"
+        )
+    n = torch.as_tensor(substeps).expand(t.shape[1] - 1).tolist()
+    if any(k < 1 for k in n):
+        raise ValueError(f"substeps must be >= 1, got {substeps}")
+    if method == "leapfrog":
+        options = {"check_separable": False, **(options or {})}
+    solver = METHODS[method](rtol, atol, None, options)
+    solver.rows = _Rows(y0, math.inf)
+    t = t.to(y0.dtype)
+    cache = solver._start(func, t[:, :1], y0)
+    y, ys = y0, [y0]
+    for j, steps in enumerate(n):
+        h = (t[:, j + 1 : j + 2] - t[:, j : j + 1]) / steps
+        for k in range(steps):
+            y, cache = solver.step(func, t[:, j : j + 1] + k * h, y, h, cache)
+        ys.append(y)
+    if solver.rows.any_stopped:
+        raise RuntimeError(Solution(y0, solver.rows.status, solver.rows.t_stop).describe(method))
+    return torch.stack(ys, 1)
 
 
 def _checked(func: Field) -> Field:

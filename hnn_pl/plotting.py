@@ -84,8 +84,10 @@ def latent_portrait(r: Rollout, max_lines: int = 4):
 
 def figures(r: Rollout) -> dict:
     """``{tag: figure}`` of a rollout: ``rollout/phase_portrait`` (pixel models: the
-    latent plane) and ``rollout/energy``."""
+    latent plane) and ``rollout/energy`` (when the data has an energy)."""
     portrait = latent_portrait(r) if r.is_pixel else phase_portrait(r)
+    if r.e_true is None:
+        return {"rollout/phase_portrait": portrait}
     return {"rollout/phase_portrait": portrait, "rollout/energy": energy_over_time(r)}
 
 

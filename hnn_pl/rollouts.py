@@ -10,8 +10,11 @@ Duck-typed, public attributes only. A model: ``field`` (a module with
 ``vector_field(t, y)`` and, for an HNN, ``hamiltonian(y)``) or is one itself; pixel
 models also ``encode``, ``decode``, ``frame_dt``. A DataModule:
 ``rollout_target(t_end, n_points)``, ``energy(y)``, ``reference_inputs(n)``, optionally
-``true_field(t, y)`` (the true ``dy/dt`` at held-out states, for the field error); pixel
-ones also ``rollout_truth``, ``probe_data(n)``, ``canonical``, ``canonical_energy``.
+``true_field(t, y)`` (the true ``dy/dt`` at held-out states, for the field error),
+``has_energy`` (``False``: no energy metrics); pixel ones also ``rollout_truth``,
+``probe_data(n)``, ``canonical``, ``canonical_energy``. A held-out truth may be ``NaN``
+where a trajectory has no sample (recordings of several trajectories on the union of
+their times); the metrics average over the samples there are.
 """
 
 from __future__ import annotations
@@ -36,7 +39,9 @@ class Rollout:
     inputs). Pixel models: ``y``/``e`` are the linear probe's ``(q, p) = (θ, c·θ̇)``;
     ``z_true``/``z_pred (T, B, L)`` encoded and integrated latents, ``x_true``/``x_pred
     (T, B, 1568)`` frame pairs, ``probe (L + 1, 2)`` with ``(q, p) ≈ [z, 1] @ probe``
-    and its training residual ``probe_mse``. ``status (B,)``: each row's
+    and its training residual ``probe_mse``. ``e_true``/``e_pred`` are ``None`` when
+    the DataModule has no energy; ``y_true`` (and ``e_true``) are ``NaN`` at times a
+    trajectory was not observed. ``status (B,)``: each row's
     :class:`hnn_pl.integrate.Status` (rows that diverged are NaN after their stop).
     ``floors``: the true system's own errors under the protocol (:func:`error_floors`).
     ``f_true``/``f_pred (T, B, D)``: the true field ``dm.true_field(t, y_true)`` and the
@@ -45,8 +50,8 @@ class Rollout:
     t: Tensor
     y_true: Tensor
     y_pred: Tensor
-    e_true: Tensor
-    e_pred: Tensor
+    e_true: Tensor | None
+    e_pred: Tensor | None
     h_pred: Tensor | None = None
     h_scale: Tensor | float = 0.0
     z_true: Tensor | None = None
@@ -232,7 +237,9 @@ def _run_state(model: Any, dm: Any, p: Protocol, floors: bool = True) -> Rollout
     sol, field = integrate_field(field, y_true[0], t.to(device), dtype=p.dtype, **kw)
     y_pred = sol.y
     y_true = y_true.to(y_pred.dtype)
-    r = Rollout(t.to(y_pred.dtype), y_true, y_pred, dm.energy(y_true), dm.energy(y_pred))
+    has_energy = getattr(dm, "has_energy", True)
+    e_true, e_pred = (dm.energy(y_true), dm.energy(y_pred)) if has_energy else (None, None)
+    r = Rollout(t.to(y_pred.dtype), y_true, y_pred, e_true, e_pred)
     r.status = sol.status
     r.h_pred = _learned_h(field, y_pred)
     if r.h_pred is not None:
@@ -262,7 +269,7 @@ def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Protocol) -> dict[str, T
     Empty without ``dm.system``.
     """
     system = getattr(dm, "system", None)
-    if system is None:
+    if system is None or not getattr(dm, "has_energy", True):
         return {}
     y0, tt = y_true[0].double(), t.double()
     kw = {k: v for k, v in p.solver_kwargs().items() if k != "method"}
@@ -272,9 +279,16 @@ def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Protocol) -> dict[str, T
     chaos = system.trajectory(y0 + CHAOS_EPS * noise, tt)
     e_true, out = dm.energy(y_true.double()), {}
     for name, y in (("integrator", integ), ("chaos", chaos)):
-        out[f"{name}_energy"] = ((dm.energy(y) - e_true) ** 2).mean(0)
-        out[f"{name}_state"] = ((y - y_true.double()) ** 2).mean((0, 2))
+        out[f"{name}_energy"] = observed_mean((dm.energy(y) - e_true) ** 2, 0)
+        out[f"{name}_state"] = observed_mean((y - y_true.double()) ** 2, (0, 2))
     return out
+
+
+def observed_mean(x: Tensor, dim: int | tuple[int, ...] | None = None) -> Tensor:
+    """``x.mean(dim)``; with ``NaN`` in ``x`` (unobserved truth) the mean of the rest."""
+    if not bool(torch.isnan(x).any()):
+        return x.mean() if dim is None else x.mean(dim)
+    return x.nanmean() if dim is None else x.nanmean(dim)
 
 
 def fit_probe(z: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
@@ -342,8 +356,8 @@ def _run_pixel(model: Any, dm: Any, p: Protocol, reader: Any) -> Rollout:
 
 
 def energy_mse_per_trajectory(r: Rollout) -> Tensor:
-    """``mean_t (E(y_true) − E(y_pred))²``: ``(B,)``."""
-    return ((r.e_true - r.e_pred) ** 2).mean(0)
+    """``mean_t (E(y_true) − E(y_pred))²``: ``(B,)`` (over observed times)."""
+    return observed_mean((r.e_true - r.e_pred) ** 2, 0)
 
 
 def conserved_drift(r: Rollout) -> Tensor:
@@ -368,15 +382,16 @@ def motion_error(y_pred: Tensor, y_true: Tensor, fraction: float = 0.1) -> Tenso
     that does not move conserves every energy).
     """
     k = max(3, math.ceil(fraction * y_true.shape[0]))
-    moved = ((y_true[:k] - y_true[:1]) ** 2).sum()
-    return ((y_pred[:k] - y_true[:k]) ** 2).sum() / moved.clamp_min(torch.finfo(moved.dtype).tiny)
+    total = torch.nansum if bool(torch.isnan(y_true[:k]).any()) else torch.sum
+    moved = total((y_true[:k] - y_true[:1]) ** 2)
+    return total((y_pred[:k] - y_true[:k]) ** 2) / moved.clamp_min(torch.finfo(moved.dtype).tiny)
 
 
 def valid_time(r: Rollout, threshold: float = 0.025) -> Tensor:
     """Valid prediction time per trajectory, ``(B,)``: the first ``t − t₀`` at which the
     normalised state error ``‖y_pred − y_true‖ / rms_t ‖y_true‖`` exceeds ``threshold``
     (the whole horizon if it never does)."""
-    scale = (r.y_true**2).sum(-1).mean(0).sqrt()
+    scale = observed_mean((r.y_true**2).sum(-1), 0).sqrt()
     err = (r.y_pred - r.y_true).norm(dim=-1) / scale.clamp_min(torch.finfo(scale.dtype).tiny)
     over = err > threshold
     first = torch.where(over.any(0), over.to(torch.uint8).argmax(0), len(r.t) - 1)
@@ -400,7 +415,7 @@ def energy_drift_slope(r: Rollout, energy: Tensor | None = None) -> Tensor:
     predicted energy ``r.e_pred (T, B)`` unless given: the relative drift per unit time
     (signed; with ``energy=r.e_true`` the truth's own, e.g. a measured decay)."""
     e = r.e_pred if energy is None else energy
-    rel = ((e - e[:1]) / r.e_true[:1].abs().clamp_min(1e-12)).mean(1)
+    rel = observed_mean((e - e[:1]) / r.e_true[:1].abs().clamp_min(1e-12), 1)
     tc = r.t - r.t.mean()
     return (tc * (rel - rel.mean())).sum() / (tc * tc).sum()
 
@@ -408,7 +423,8 @@ def energy_drift_slope(r: Rollout, energy: Tensor | None = None) -> Tensor:
 def score(r: Rollout) -> dict[str, float]:
     """Every metric of a rollout, unprefixed, over the rows that did not diverge.
 
-    - ``energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²``;
+    - ``energy_mse``: ``mean_{t,b} (E(y_true) − E(y_pred))²`` (this and both energy
+      slopes only when the DataModule has an energy);
     - ``state_mse``: ``mean_{t,b,d} (y_true − y_pred)²``;
     - ``motion_error``: see :func:`motion_error`;
     - ``valid_time``: mean over trajectories of :func:`valid_time` (threshold 0.025);
@@ -430,20 +446,23 @@ def score(r: Rollout) -> dict[str, float]:
     on_truth = {} if r.f_true is None else {"field_error": float(field_error(r))}
     if diverged:
         r = r.rows(r.status == 0)
+    names = ["energy_mse", "state_mse", "motion_error", "valid_time", "energy_drift_slope"]
+    names += ["true_energy_drift_slope"]
+    if r.e_true is None:
+        names = [n for n in names if "energy" not in n]
     if r.y_true.shape[1] == 0:
-        names = ["energy_mse", "state_mse", "motion_error", "valid_time", "energy_drift_slope"]
-        names += ["true_energy_drift_slope"]
         names += ["conserved_drift"] * (r.h_pred is not None)
         return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged), **on_truth}
-    out = {
-        "energy_mse": energy_mse_per_trajectory(r).mean(),
-        "state_mse": ((r.y_true - r.y_pred) ** 2).mean(),
-        "motion_error": motion_error(r.y_pred, r.y_true),
-        "valid_time": valid_time(r).mean(),
-        "energy_drift_slope": energy_drift_slope(r),
-        "true_energy_drift_slope": energy_drift_slope(r, r.e_true),
-        "diverged_rows": diverged,
+    metrics = {
+        "energy_mse": lambda: energy_mse_per_trajectory(r).mean(),
+        "state_mse": lambda: observed_mean((r.y_true - r.y_pred) ** 2),
+        "motion_error": lambda: motion_error(r.y_pred, r.y_true),
+        "valid_time": lambda: valid_time(r).mean(),
+        "energy_drift_slope": lambda: energy_drift_slope(r),
+        "true_energy_drift_slope": lambda: energy_drift_slope(r, r.e_true),
     }
+    out = {name: metrics[name]() for name in names}
+    out["diverged_rows"] = diverged
     if r.h_pred is not None:
         out["conserved_drift"] = conserved_drift(r)
     out.update(on_truth)

@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 from hnn_pl.protocols import Protocol, ReferenceProtocol
 
 MODELS = ("baseline", "hnn", "dissipative")
-RECIPES = ("paper", "fast")
+RECIPES = ("paper", "fast", "traj")
 
 
 class Published(NamedTuple):
@@ -59,6 +59,10 @@ class Task:
         paper_motion: the paper recipe's HNN medians on the clean protocol
             (:class:`PaperMotion`), the state target of
             :class:`~hnn_pl.callbacks.TimeToAccuracy`; ``None``: no state target.
+        traj_models: the models with a trajectory-objective config (recipe
+            ``"traj"``: ``TASK_traj.yaml``, learning from the observed states only).
+        independent: the true-energy evaluation (``ReferenceProtocol(atol=1e-12)``:
+            the published procedure without its quirks) where it applies, or ``None``.
     """
 
     name: str
@@ -69,15 +73,24 @@ class Task:
     clean: Protocol
     cost: float = 1.0
     notes: dict[str, str] = field(default_factory=dict)
-    tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10})
+    tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10, "traj": 50})
     models: tuple[str, ...] = ("baseline", "hnn")
     paper_motion: PaperMotion | None = None
+    traj_models: tuple[str, ...] = ()
+    independent: ReferenceProtocol | None = None
+
+    def models_for(self, recipe: str) -> tuple[str, ...]:
+        """The models with a bundled config of ``recipe``."""
+        return self.traj_models if recipe == "traj" else self.models
 
     def config(self, model: str = "hnn", recipe: str = "paper") -> str:
         """The bundled config's file name, e.g. ``spring_fast_baseline.yaml``."""
-        if model not in self.models or recipe not in RECIPES:
-            raise ValueError(f"model must be in {self.models} and recipe in {RECIPES}")
-        parts = [self.name, "fast" if recipe == "fast" else "", model * (model != "hnn")]
+        if recipe not in RECIPES or model not in self.models_for(recipe):
+            raise ValueError(
+                f"recipe must be in {RECIPES} and model in {self.models_for(recipe)} "
+                f"(the {recipe!r} configs of {self.name})"
+            )
+        parts = [self.name, "" if recipe == "paper" else recipe, model * (model != "hnn")]
         return "_".join(p for p in parts if p) + ".yaml"
 
     def protocol(self, name: str = "clean") -> Protocol | ReferenceProtocol:
@@ -115,6 +128,8 @@ TASKS: dict[str, Task] = {
             paper_motion=PaperMotion(
                 8.842e-02, math.nan, _PAPER + "; field error not yet measured"
             ),
+            traj_models=("baseline", "hnn"),
+            independent=ReferenceProtocol(atol=1e-12),
         ),
         Task(
             "pendulum",
@@ -130,6 +145,8 @@ TASKS: dict[str, Task] = {
             paper_motion=PaperMotion(
                 1.001e-01, 1.568e-02, _PAPER + "; field error the median of seeds 0-1"
             ),
+            traj_models=("baseline", "hnn"),
+            independent=ReferenceProtocol(atol=1e-12),
         ),
         Task(
             "real_pendulum",
@@ -143,6 +160,7 @@ TASKS: dict[str, Task] = {
             Protocol(t_end=None, n_points=None, n_groups=1),
             cost=0.8,
             models=("baseline", "hnn", "dissipative"),
+            traj_models=("baseline", "hnn", "dissipative"),
             notes={
                 "results": "dissipative: the dissipative HNN (`real_pendulum_dissipative.yaml`, "
                 "no published number). On the paper's forward differences it learns the "
@@ -166,10 +184,11 @@ TASKS: dict[str, Task] = {
             ReferenceProtocol(starts="system", t_end=25.0, n_points=500, rtol=1e-9),
             Protocol(t_end=20.0, max_starts=100),
             cost=4.0,
-            tta_every={"paper": 250, "fast": 25},
+            tta_every={"paper": 250, "fast": 25, "traj": 100},
             paper_motion=PaperMotion(
                 8.934e-03, 7.741e-03, _PAPER + "; field error the median of seeds 0-1"
             ),
+            traj_models=("baseline", "hnn"),
         ),
         Task(
             "three_body",
@@ -225,6 +244,8 @@ TASKS: dict[str, Task] = {
 
 #: what ``reproduce`` runs without ``--tasks`` (the pixel task adds ~5 min per run)
 DEFAULT_TASKS = [name for name, t in TASKS.items() if t.kind == "state"]
+#: the tasks with trajectory-objective configs (``reproduce --recipe traj``)
+TRAJ_TASKS = [name for name, t in TASKS.items() if t.traj_models]
 
 
 def get(name: str) -> Task:

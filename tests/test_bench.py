@@ -16,7 +16,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SECTIONS = ("machine", "integrators", "training", "data", "startup", "tta", "threads")
-SECTIONS += ("symplectic", "independent")
+SECTIONS += ("symplectic", "independent", "trajectory")
 SEEDED = """# hnn_pl benchmarks
 
 Hand-written introduction.
@@ -61,7 +61,7 @@ def report(tmp_path_factory) -> str:
     out = tmp_path_factory.mktemp("bench") / "BENCHMARKS.md"
     out.write_text(SEEDED)
     cmd = [sys.executable, "benchmarks/run.py", "--quick", "--out", str(out)]
-    subprocess.run(cmd, check=True, timeout=400, cwd=REPO, capture_output=True)
+    subprocess.run(cmd, check=True, timeout=600, cwd=REPO, capture_output=True)
     return out.read_text()
 
 

@@ -77,7 +77,7 @@ def test_wheel_ships_configs_and_runs_from_anywhere(tmp_path):
     modules = {p.relative_to(tmp_path / "src").as_posix() for p in (tmp_path / "src").rglob("*")}
     modules = {m for m in modules if m.startswith("hnn_pl/") and m.endswith(".py")}
     assert modules <= names, f"modules missing from the wheel: {sorted(modules - names)}"
-    assert "hnn_pl/data/real_pend_h_1.txt" in names
+    assert {"hnn_pl/data/real_pend_h_1.txt", "hnn_pl/data/real_pendulum.csv"} <= names
     assert f"hnn_pl-{hnn_pl.__version__}.dist-info/entry_points.txt" in names
 
     venv = _fresh_venv(tmp_path, wheel)

@@ -25,8 +25,8 @@ PACKAGE = Path(hnn_pl.__file__).parent
 def test_every_task_names_its_configs_and_published_numbers_once():
     configs = set(bundled_configs())
     for task in tasks.TASKS.values():
-        for model in task.models:
-            for recipe in tasks.RECIPES:
+        for recipe in tasks.RECIPES:
+            for model in task.models_for(recipe):
                 assert task.config(model, recipe) in configs
         for model in ("baseline", "hnn"):
             assert task.published[model].energy_mse > 0
@@ -36,8 +36,11 @@ def test_every_task_names_its_configs_and_published_numbers_once():
     assert tasks.get("spring").config("baseline", "fast") == "spring_fast_baseline.yaml"
     real = tasks.get("real_pendulum").config("dissipative", "fast")
     assert real == "real_pendulum_fast_dissipative.yaml"
-    with pytest.raises(ValueError, match="model must be in"):
+    assert tasks.get("spring").config("hnn", "traj") == "spring_traj.yaml"
+    with pytest.raises(ValueError, match="model in"):
         tasks.get("spring").config("dissipative")
+    with pytest.raises(ValueError, match="model in"):
+        tasks.get("three_body").config("hnn", "traj")
     with pytest.raises(KeyError, match="known tasks"):
         tasks.get("spring_mass")
 

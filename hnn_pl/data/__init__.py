@@ -3,6 +3,7 @@
 from hnn_pl.data.base import TensorBatches, TrajectoryDataModule
 from hnn_pl.data.pixel import PixelPendulumData
 from hnn_pl.data.real_pendulum import RealPendulumData
+from hnn_pl.data.recording import RecordingData, load_recording
 from hnn_pl.data.simulated import SimulatedData
 
 __all__ = [
@@ -10,5 +11,7 @@ __all__ = [
     "TrajectoryDataModule",
     "SimulatedData",
     "RealPendulumData",
+    "RecordingData",
+    "load_recording",
     "PixelPendulumData",
 ]

@@ -8,6 +8,17 @@ second run with the same parameters skips generation. ``setup`` exposes:
 - ``x_test, dx_test``: ``(N_test, D)``;
 - ``test_t (T,)``, ``test_y (T, B, D)``: the clean held-out trajectories (times and
   states, time first as ``odeint`` returns them) that rollouts start from.
+
+State tasks also serve their draws as observed trajectories (no derivatives), a flat
+table per split (``train``, ``test``), samples of one trajectory contiguous and in
+increasing time:
+
+- ``obs_y_<split> (S, D)``: the observed (noisy) states;
+- ``obs_t_<split> (S,)``: their times;
+- ``obs_traj_<split> (S,)`` int64: trajectory id ``0 … M − 1``
+  (``n_<split>_trajectories = M``);
+- with ``window=K``: ``windows_<split> (W, K)`` int64 rows of that table, one per
+  start whose ``K`` consecutive samples lie in one trajectory (``None`` without).
 """
 
 from __future__ import annotations
@@ -15,6 +26,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import json
+import math
 import os
 import warnings
 from pathlib import Path
@@ -152,6 +164,15 @@ class TrajectoryDataModule(L.LightningDataModule):
             own data set, as the reference code does.
         cache_dir: where generated data is kept (default :func:`default_cache_dir`).
         dtype: ``"float32"`` or ``"float64"``, the dtype of the tensors served.
+        window: ``None``: loaders serve derivative pairs ``(x, dx)``. ``K ≥ 2``:
+            they serve windows of ``K`` consecutive observed samples as ``(y (B, K,
+            D), t (B, K), index (B, K))``, ``index`` the rows of the split's
+            ``obs_*`` table (state tasks only).
+        keep_fraction: in ``(0, 1]``: keep a random ``max(2, ⌈keep_fraction · n⌉)``
+            of each trajectory's ``n`` observed samples, in time order (irregular
+            times), in both splits; drawn from a generator of its own (seed
+            ``seed + THIN_SEED_OFFSET``), so the data draws do not change. The
+            derivative pairs and the rollout targets are never thinned.
     """
 
     system = None
@@ -163,6 +184,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         seed: int | None = None,
         cache_dir: str | None = None,
         dtype: str = "float32",
+        window: int | None = None,
+        keep_fraction: float = 1.0,
     ) -> None:
         super().__init__()
         if dtype not in ("float32", "float64"):
@@ -171,6 +194,13 @@ class TrajectoryDataModule(L.LightningDataModule):
             batch_size is None or batch_size >= 1, f"batch_size must be >= 1 or null: {batch_size}"
         )
         require(full_batch_steps >= 1, f"full_batch_steps must be >= 1: {full_batch_steps}")
+        require(window is None or window >= 2, f"window must be >= 2 or null: {window}")
+        require(
+            math.isfinite(keep_fraction) and 0 < keep_fraction <= 1,
+            f"keep_fraction must lie in (0, 1]: {keep_fraction}",
+        )
+        self.window = window
+        self.keep_fraction = float(keep_fraction)
         self.batch_size = batch_size
         self.full_batch_steps = full_batch_steps
         self.seed = int(os.environ.get("PL_GLOBAL_SEED", 0)) if seed is None else seed
@@ -261,6 +291,33 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.data = {k: v.to(self.dtype) if v.is_floating_point() else v for k, v in raw.items()}
         for key, value in self.data.items():
             setattr(self, key, value)
+        if "obs_y_train" in self.data:
+            self._observe()
+        elif self.window is not None or self.keep_fraction != 1.0:
+            raise ValueError(f"{type(self).__name__} serves no observed trajectories: window: null")
+
+    def _observe(self) -> None:
+        """Thin the ``obs_*`` tables (``keep_fraction``) and index their windows."""
+        g = self._generator(THIN_SEED_OFFSET)
+        self._windowed: dict[str, tuple[Tensor, Tensor, Tensor]] = {}
+        for split in ("train", "test"):
+            y, t, traj = (getattr(self, f"obs_{k}_{split}") for k in ("y", "t", "traj"))
+            if self.keep_fraction != 1.0:
+                keep = thin(traj, self.keep_fraction, g)
+                y, t, traj = y[keep], t[keep], traj[keep]
+                for k, v in (("y", y), ("t", t), ("traj", traj)):
+                    setattr(self, f"obs_{k}_{split}", v)
+            setattr(self, f"n_{split}_trajectories", int(traj.max()) + 1 if len(traj) else 0)
+            windows = None
+            if self.window is not None:
+                windows = window_starts(traj, self.window)
+                require(
+                    len(windows) > 0,
+                    f"window {self.window} is longer than every {split} trajectory "
+                    f"(at most {int(torch.bincount(traj).max())} samples)",
+                )
+                self._windowed[split] = (y[windows], t[windows], windows)
+            setattr(self, f"windows_{split}", windows)
 
     def _generator(self, offset: int = 0) -> torch.Generator:
         return torch.Generator().manual_seed(self.seed + offset)
@@ -273,7 +330,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         if world > 1 and self.trainer is not None:
             seed = self.trainer.strategy.broadcast(seed)  # one permutation for all ranks
         return TensorBatches(
-            (self.x_train, self.dx_train),
+            self._served("train"),
             self.batch_size,
             shuffle=True,
             generator=torch.Generator().manual_seed(seed + 1),
@@ -285,11 +342,17 @@ class TrajectoryDataModule(L.LightningDataModule):
     def val_dataloader(self) -> TensorBatches:
         """Held-out batches, sharded like training ones (torchmetrics sums over ranks,
         so ``val/loss`` is the MSE over the whole split)."""
-        return TensorBatches((self.x_test, self.dx_test), self.batch_size, **self._ranks())
+        return TensorBatches(self._served("test"), self.batch_size, **self._ranks())
 
     def test_dataloader(self) -> TensorBatches:
         """As :meth:`val_dataloader`."""
-        return TensorBatches((self.x_test, self.dx_test), self.batch_size, **self._ranks())
+        return TensorBatches(self._served("test"), self.batch_size, **self._ranks())
+
+    def _served(self, split: str) -> tuple[Tensor, ...]:
+        """``(x, dx)`` pairs, or with ``window`` the windows ``(y, t, index)``."""
+        if self.window is not None:
+            return self._windowed[split]
+        return getattr(self, f"x_{split}"), getattr(self, f"dx_{split}")
 
     def predict_dataloader(self) -> TensorBatches:
         """All held-out inputs, unsharded: rank zero holds all for the writer."""
@@ -298,6 +361,12 @@ class TrajectoryDataModule(L.LightningDataModule):
     def _ranks(self) -> dict[str, int]:
         rank, world = data_parallel_rank(self.trainer)
         return {"rank": rank, "world_size": world}
+
+    @property
+    def has_energy(self) -> bool:
+        """Whether :meth:`energy` is defined (``system`` set): else rollouts skip the
+        energy metrics."""
+        return self.system is not None
 
     def energy(self, y: Tensor) -> Tensor:
         """The physical energy of states ``(..., D) -> (...)`` that metrics compare."""
@@ -333,6 +402,41 @@ class TrajectoryDataModule(L.LightningDataModule):
             y = self.system.trajectory(self.test_y[0].to(torch.float64), t)
             self._rollout_cache[key] = (t.to(self.dtype), y.to(self.dtype))
         return self._rollout_cache[key]
+
+
+#: offset of the thinning generator's seed from ``seed`` (the data draws use ``seed``,
+#: the training order ``seed + 1``)
+THIN_SEED_OFFSET = 7919
+
+
+def observed_table(y: Tensor, t: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``M`` trajectories sampled at common times, ``y (T, M, D)`` over ``t (T,)``, as
+    the flat ``obs_*`` table: ``y (M·T, D)``, ``t (M·T,)``, ``traj (M·T,)`` int64,
+    trajectory by trajectory (the derivative pairs' row order)."""
+    n_t, m = y.shape[:2]
+    rows = y.transpose(0, 1).reshape(-1, y.shape[-1])
+    return rows, t.repeat(m), torch.arange(m).repeat_interleave(n_t)
+
+
+def thin(traj: Tensor, keep_fraction: float, generator: torch.Generator) -> Tensor:
+    """Rows ``(S',)`` of a table with trajectory ids ``traj (S,)`` (contiguous) that keep
+    a random ``max(2, ⌈keep_fraction · n⌉)`` (at most ``n``) of each trajectory's ``n``
+    samples, in their order; one ``randperm`` per trajectory from ``generator``."""
+    counts = torch.bincount(traj).tolist()
+    starts = [0, *torch.tensor(counts).cumsum(0).tolist()[:-1]]
+    kept = []
+    for start, n in zip(starts, counts, strict=True):
+        k = min(n, max(2, math.ceil(keep_fraction * n)))
+        kept.append(start + torch.randperm(n, generator=generator)[:k].sort().values)
+    return torch.cat(kept)
+
+
+def window_starts(traj: Tensor, k: int) -> Tensor:
+    """``(W, K)`` int64 rows ``s … s + K − 1`` of a table with contiguous trajectory ids
+    ``traj (S,)``, for every ``s`` whose ``K`` samples share one trajectory."""
+    s = torch.arange(max(len(traj) - k + 1, 0))
+    s = s[traj[s] == traj[s + k - 1]]
+    return s[:, None] + torch.arange(k)
 
 
 def _checksum(data: dict[str, Tensor]) -> str:

@@ -2,21 +2,27 @@
 
 from __future__ import annotations
 
+from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from hnn_pl.data.base import TrajectoryDataModule
-from hnn_pl.systems.base import system_spec
+from hnn_pl.data.recording import Recording, RecordingData, differences, load_recording
 from hnn_pl.systems.real_pendulum import RealPendulum, load_real_pendulum
 
+#: the measured trajectory as a recording (:mod:`hnn_pl.data.recording`)
+RECORDING_FILE = "real_pendulum.csv"
 
-class RealPendulumData(TrajectoryDataModule):
+
+class RealPendulumData(RecordingData):
     """Finite differences of the measured trajectory, split as the reference.
 
-    With states ``y_i = (θ_i, θ̇_i)`` at times ``t_i`` (556 samples, mostly
-    ``Δt = 1/6``), inputs are ``y_i`` and targets ``(y_{i+1} − y_i)/(t_{i+1} − t_i)``
+    The shipped recording ``hnn_pl/data/real_pendulum.csv`` (one trajectory,
+    the numbers of ``real_pend_h_1.txt``). With states ``y_i = (θ_i, θ̇_i)`` at times
+    ``t_i`` (556 samples, mostly ``Δt = 1/6``), inputs are ``y_i`` and targets
+    ``(y_{i+1} − y_i)/(t_{i+1} − t_i)``
     with the real gaps: 555 pairs (``differences="forward"``, the paper's). Forward
     differences of an oscillation are biased towards decay: for ``y = e^{iωt}`` they
     give ``(e^{iωΔt} − 1)/Δt``, whose real part ``−(1 − cos ωΔt)/Δt`` reads as friction
@@ -28,11 +34,19 @@ class RealPendulumData(TrajectoryDataModule):
     ``test_y (110, 1, 2)`` at ``test_t (110,)``; there is no ground truth beyond
     it. Energy: :class:`~hnn_pl.systems.real_pendulum.RealPendulum` (fitted).
 
+    Observed trajectories (``obs_*``, ``window``; no differences): the held-out
+    segment is the samples of ``test_t`` (forward: ``test_start … test_stop − 1``,
+    central: one later); the samples before and after it (those pieces of at least
+    two samples) are the training trajectories — forward by default: 444 and 2
+    samples.
+
     Args:
-        path: a data file of the same format (``None``: the shipped copy).
+        path: a recording (``.csv``, ``.npz``, ``.pt``) or a file of the original
+            ``.txt`` format (``None``: the shipped recording).
         test_start, test_stop: the held-out pairs ``[test_start, test_stop)``.
         differences: ``"forward"`` (paper) or ``"central"``.
-        batch_size, full_batch_steps, seed, cache_dir, dtype: see :class:`TrajectoryDataModule`.
+        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction:
+            see :class:`~hnn_pl.data.base.TrajectoryDataModule`.
     """
 
     def __init__(
@@ -46,51 +60,49 @@ class RealPendulumData(TrajectoryDataModule):
         cache_dir: str | None = None,
         dtype: str = "float32",
         differences: str = "forward",
+        window: int | None = None,
+        keep_fraction: float = 1.0,
     ) -> None:
-        if differences not in ("forward", "central"):
-            raise ValueError(f"differences must be 'forward' or 'central', got {differences!r}")
-        super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
-        self.save_hyperparameters(ignore=["cache_dir"])
-        self.differences = differences
-        self.path = path
         self.test_start, self.test_stop = test_start, test_stop
-        self.system = RealPendulum()
-        self.hparams["system"] = system_spec(self.system)
+        super().__init__(
+            path,
+            RealPendulum(),
+            differences=differences,
+            batch_size=batch_size,
+            full_batch_steps=full_batch_steps,
+            seed=seed,
+            cache_dir=cache_dir,
+            dtype=dtype,
+            window=window,
+            keep_fraction=keep_fraction,
+        )
+        for name in ("test_fraction", "test_trajectories", "test_segment"):
+            self.hparams.pop(name, None)  # RecordingData's, not options of this class
 
-    @property
-    def state_dim(self) -> int:
-        return 2
+    def read(self, path: str | None) -> Recording:
+        """The shipped recording (``None``), a ``.txt`` of the original format, or a
+        recording file."""
+        if path is None:
+            with resources.as_file(resources.files("hnn_pl.data") / RECORDING_FILE) as shipped:
+                return load_recording(shipped)
+        if Path(path).suffix != ".txt":
+            return load_recording(path)
+        t, y = load_real_pendulum(path)
+        traj = torch.zeros(len(t), dtype=torch.int64)
+        return Recording(str(path), traj, t, y, torch.zeros(1, dtype=torch.int64))
 
-    def cache_params(self) -> dict[str, Any]:
-        params = {"path": self.path, "test": [self.test_start, self.test_stop]}
-        return params if self.differences == "forward" else {**params, "differences": "central"}
+    def _split(self, *_: Any) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+        """The samples of ``test_t`` held out (central differences: one later)."""
+        shift = int(self.differences == "central")
+        return self.segment_split(self.test_start + shift, self.test_stop + shift)
 
     def generate(self) -> dict[str, Tensor]:
-        t, y = load_real_pendulum(self.path)
-        if self.differences == "central":
-            x, dx = y[1:-1], (y[2:] - y[:-2]) / (t[2:] - t[:-2])[:, None]
-            t = t[1:-1]
-        else:
-            x, dx = y[:-1], (y[1:] - y[:-1]) / (t[1:] - t[:-1])[:, None]
+        data = super().generate()
+        x, dx = differences(self.recording.t, self.recording.y, self.differences)
         a, b = self.test_start, self.test_stop
         train = list(range(a)) + list(range(b, len(x)))
-        return {
-            "x_train": x[train],
-            "dx_train": dx[train],
-            "x_test": x[a:b],
-            "dx_test": dx[a:b],
-            "test_t": t[a:b],
-            "test_y": x[a:b, None],
-        }
-
-    def rollout_target(
-        self, t_end: float | None = None, n_points: int | None = None
-    ) -> tuple[Tensor, Tensor]:
-        """The measured test segment ``(t (110,), y (110, 1, 2))``; a ``t_end`` other than
-        ``None`` raises ``ValueError`` (no ground truth beyond the recording)."""
-        if t_end is not None:
-            raise ValueError("the real pendulum has no ground truth off the recording: t_end: null")
-        return self.test_t, self.test_y
+        pairs = {"x_train": x[train], "dx_train": dx[train], "x_test": x[a:b], "dx_test": dx[a:b]}
+        return {**data, **pairs}
 
     def true_field(self, t: Tensor, y: Tensor) -> Tensor:
         """The measured ``dy/dt`` along a recorded segment ``y (T, B, D)`` at ``t (T,)``:

@@ -8,7 +8,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from hnn_pl.data.base import TrajectoryDataModule, require, split_sizes
+from hnn_pl.data.base import TrajectoryDataModule, observed_table, require, split_sizes
 from hnn_pl.safe_io import require_memory
 from hnn_pl.systems.base import HamiltonianSystem, check_system, source_digest, system_spec
 
@@ -33,6 +33,10 @@ class SimulatedData(TrajectoryDataModule):
     data's own starts (:func:`~hnn_pl.systems.base.check_system`), are refused in one
     line. The cache key covers the source of a system defined outside this package.
 
+    The same noisy states, split alike, are the observed trajectories (``obs_*``
+    tables, and with ``window`` the loaders' windows): the paper's draws with the
+    derivatives withheld.
+
     Args:
         system: the physical system (``class_path`` in YAML).
         n_trajectories: number of trajectories.
@@ -41,7 +45,8 @@ class SimulatedData(TrajectoryDataModule):
         noise_std: standard deviation of the input noise.
         test_fraction: share of the trajectories held out.
         test_first: hold out the first (not the last) trajectories.
-        batch_size, full_batch_steps, seed, cache_dir, dtype: see :class:`TrajectoryDataModule`.
+        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction: see
+            :class:`TrajectoryDataModule`.
     """
 
     def __init__(
@@ -58,8 +63,12 @@ class SimulatedData(TrajectoryDataModule):
         seed: int | None = None,
         cache_dir: str | None = None,
         dtype: str = "float32",
+        window: int | None = None,
+        keep_fraction: float = 1.0,
     ) -> None:
-        super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
+        super().__init__(
+            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction
+        )
         split_sizes(n_trajectories, test_fraction)
         require(n_points >= 2, f"n_points must be >= 2: {n_points}")
         t0, t1 = (float(t) for t in t_span)
@@ -89,6 +98,7 @@ class SimulatedData(TrajectoryDataModule):
             "system": system_spec(self.system),
             **params,
             **({"source": source} if source else {}),
+            "observed": 1,
         }
 
     def generate(self) -> dict[str, Tensor]:
@@ -105,7 +115,7 @@ class SimulatedData(TrajectoryDataModule):
         def rows(a: Tensor, mask: Tensor) -> Tensor:
             return a[:, mask].transpose(0, 1).reshape(-1, a.shape[-1])
 
-        return {
+        data = {
             "x_train": rows(x, ~test),
             "dx_train": rows(dy, ~test),
             "x_test": rows(x, test),
@@ -113,3 +123,7 @@ class SimulatedData(TrajectoryDataModule):
             "test_t": t,
             "test_y": y[:, test],
         }
+        for split, mask in (("train", ~test), ("test", test)):
+            table = observed_table(x[:, mask], t)
+            data.update({f"obs_{k}_{split}": v for k, v in zip(("y", "t", "traj"), table)})
+        return data

@@ -1,27 +1,60 @@
-"""What the state-space models share: loss, logging, optimiser, rollouts."""
+"""What the state-space models share: the two objectives, logging, optimiser, rollouts."""
 
 from __future__ import annotations
 
+from typing import Any
+
+import torch
 from torch import Tensor, nn
 from torchmetrics import MeanSquaredError
 
 from hnn_pl.models.recipe import RecipeModel
 
+OBJECTIVES = ("derivative", "trajectory")
+LEARNED_STATES = ("none", "sample", "trajectory")
+
 
 class DynamicsModel(RecipeModel):
-    """A LightningModule that learns ``dy/dt = f_θ(y)`` from ``(y, dy/dt)`` pairs.
+    """A LightningModule that learns ``dy/dt = f_θ(y)`` from derivatives or from trajectories.
 
     Subclasses implement :meth:`build_field`; ``field`` (public) is the plain module it
     returns, with ``vector_field(t, y)`` (and ``hamiltonian(y)`` for an HNN): what
-    rollouts integrate. Batches are ``(y, dydt)``, both ``(batch, 2k)``; the loss is
-    ``mean((f_θ(y) − dy/dt)²)``. Logs ``train/loss`` every step and ``val/loss``,
-    ``test/loss`` as the MSE over the whole split (torchmetrics).
+    rollouts integrate. Logs ``train/loss`` every step and ``val/loss``, ``test/loss``
+    as the MSE over the whole split (torchmetrics).
+
+    **Derivative objective** (``objective="derivative"``, the paper's): batches are
+    ``(y, dydt)``, both ``(B, 2k)``; the loss is ``mean((f_θ(y) − dy/dt)²)``.
+
+    **Trajectory objective** (``objective="trajectory"``; data with ``window: K``):
+    batches are windows ``(y (B, K, 2k), t (B, K), index (B, K))`` of ``K``
+    consecutive observed samples (``index``: rows of the DataModule's
+    ``obs_*_train`` table). From each window's start ``ŷ_0`` the field is integrated
+    to the window's times in one batched call
+    (:func:`~hnn_pl.integrate.odeint_windows`: ``traj_method``, ``substeps`` equal
+    steps of each row's own size between samples, so uneven spacing is exact), and
+
+    ``loss = mean_{b, k≥1, d} (ŷ_k − y_k)² + state_weight · mean_{b, d} (ŷ_0 − y_0)²``.
+
+    ``ŷ_0`` is the observed ``y_0`` (``learned_states="none"``; the second term is 0),
+    a learned denoised state per observed sample (``"sample"``: a parameter
+    ``(S, 2k)`` started at the observations), or a learned state per trajectory at
+    its first sample, integrated to the window's start in the same call
+    (``"trajectory"``: ``(M, 2k)``; SRNN's initial-state optimisation). The learned
+    states are sized from the DataModule at ``setup`` (:meth:`init_states`), carry
+    no weight decay and are saved in checkpoints. ``val/loss`` and ``test/loss``:
+    the first term on held-out windows from their observed starts.
 
     Args:
         input_dim: ``2k``, the state size (linked from the DataModule by the CLI).
         hidden_dim: ``h``, the MLP's width (200 in the paper).
         n_hidden: number of hidden layers (2).
         activation: hidden nonlinearity (``"tanh"``).
+        objective: ``"derivative"`` or ``"trajectory"``.
+        traj_method: fixed-step method of the trajectory objective: ``"rk4"``,
+            ``"leapfrog"``, ``"implicit_midpoint"`` (or ``"euler"``).
+        substeps: integration steps between consecutive samples.
+        learned_states: ``"none"``, ``"sample"`` or ``"trajectory"``.
+        state_weight: weight of the learned states' fit to the observations.
         lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip,
             on_nonfinite: the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`;
             the paper's: Adam, constant rate).
@@ -41,7 +74,14 @@ class DynamicsModel(RecipeModel):
         inner_steps: int = 1,
         grad_clip: float | None = None,
         on_nonfinite: str = "stop",
+        objective: str = "derivative",
+        traj_method: str = "rk4",
+        substeps: int = 1,
+        learned_states: str = "none",
+        state_weight: float = 1.0,
     ) -> None:
+        from hnn_pl.integrate import WINDOW_METHODS
+
         recipe = (lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip)
         super().__init__(*recipe, on_nonfinite)
         if input_dim < 2 or input_dim % 2 or hidden_dim < 1 or n_hidden < 1:
@@ -49,8 +89,28 @@ class DynamicsModel(RecipeModel):
                 "input_dim must be even and >= 2 (y = (q, p)), hidden_dim and n_hidden >= 1; "
                 f"got input_dim={input_dim}, hidden_dim={hidden_dim}, n_hidden={n_hidden}"
             )
+        for ok, message in [
+            (objective in OBJECTIVES, f"objective must be one of {OBJECTIVES}: {objective!r}"),
+            (
+                traj_method in WINDOW_METHODS,
+                f"traj_method must be one of {WINDOW_METHODS}: {traj_method!r}",
+            ),
+            (substeps >= 1, f"substeps must be >= 1: {substeps}"),
+            (
+                learned_states in LEARNED_STATES,
+                f"learned_states must be one of {LEARNED_STATES}: {learned_states!r}",
+            ),
+            (state_weight >= 0, f"state_weight must be >= 0: {state_weight}"),
+        ]:
+            if not ok:
+                raise ValueError(message)
         self.save_hyperparameters()
+        self.objective, self.traj_method, self.substeps = objective, traj_method, substeps
+        self.learned_states, self.state_weight = learned_states, state_weight
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
+        self.register_parameter("states", None)
+        self.register_buffer("traj_first", None, persistent=False)
+        self.register_buffer("obs_t_train", None, persistent=False)
         self.val_mse = MeanSquaredError()
         self.test_mse = MeanSquaredError()
 
@@ -76,20 +136,126 @@ class DynamicsModel(RecipeModel):
 
         return rollout(self, y0, t, method=method, dtype="model", **kwargs).y
 
-    def training_loss(self, batch: tuple[Tensor, Tensor]) -> dict[str, Tensor]:
+    # ------------------------------------------------------------ learned states
+
+    def init_states(self, obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor) -> None:
+        """Create the learned states from the training split's observed samples
+        ``obs_y (S, 2k)``, their times ``obs_t (S,)`` and trajectory ids ``obs_traj (S,)``
+        (contiguous, time-ordered): ``(S, 2k)`` for ``"sample"``, each trajectory's
+        first sample ``(M, 2k)`` for ``"trajectory"``; nothing for ``"none"``, for the
+        derivative objective, or once they exist."""
+        if self.learned_states == "none" or self.objective != "trajectory":
+            return
+        first = torch.ones_like(obs_traj, dtype=torch.bool)
+        first[1:] = obs_traj[1:] != obs_traj[:-1]
+        self.traj_first = first.nonzero().flatten().to(self.device)
+        self.obs_t_train = obs_t.to(self.device, self.dtype)
+        if self.states is None:
+            init = obs_y if self.learned_states == "sample" else obs_y[self.traj_first]
+            self.states = nn.Parameter(init.detach().clone().to(self.device, self.dtype))
+
+    def setup(self, stage: str) -> None:
+        dm = self.trainer.datamodule if self._trainer is not None else None
+        if self.learned_states != "none" and dm is not None and stage == "fit":
+            if not hasattr(dm, "obs_y_train"):
+                dm.setup(stage)
+            self.init_states(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train)
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        super().on_load_checkpoint(checkpoint)
+        saved = checkpoint.get("state_dict", {}).get("states")
+        if saved is not None and self.states is None:
+            self.states = nn.Parameter(torch.zeros_like(saved))
+
+    def param_groups(self) -> list[dict[str, Any]]:
+        """The field's parameters with ``weight_decay``; the learned states without."""
+        groups = super().param_groups()
+        if self.states is None:
+            return groups
+        groups[0]["params"] = [p for p in groups[0]["params"] if p is not self.states]
+        return [*groups, {"params": [self.states], "weight_decay": 0.0}]
+
+    # ------------------------------------------------------------------ objectives
+
+    def _batch(self, batch: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
+        """``batch`` checked against the objective (one-line error on the wrong kind)."""
+        window = len(batch) == 3 and batch[0].ndim == 3
+        if window != (self.objective == "trajectory"):
+            raise ValueError(
+                f"model.objective={self.objective!r} got a batch of "
+                f"{'windows (y, t, index)' if window else 'derivative pairs (y, dydt)'}: "
+                + (
+                    "set data.init_args.window (K >= 2) for the trajectory objective"
+                    if not window
+                    else "set model.init_args.objective: trajectory, or data window: null"
+                )
+            )
+        return batch
+
+    def integrate_windows(self, y0: Tensor, t: Tensor, substeps: int | Tensor = 0) -> Tensor:
+        """The field from ``y0 (B, 2k)`` at ``t[:, 0]`` to ``t (B, K)``: ``(B, K, 2k)``
+        (``substeps`` steps per interval; 0: the model's)."""
+        from hnn_pl.integrate import odeint_windows
+
+        n = substeps if isinstance(substeps, Tensor) or substeps else self.substeps
+        return odeint_windows(self.field.vector_field, y0, t, self.traj_method, n, 1e-6, 1e-8)
+
+    def window_loss(self, batch: tuple[Tensor, Tensor, Tensor]) -> dict[str, Tensor]:
+        """The trajectory objective of one window batch (class docstring): ``{"loss",
+        "fit"}`` and, with learned states, ``"anchor"`` (their fit to the observations)."""
+        y, t, index = batch
+        if self.states is None and self.learned_states != "none":
+            raise RuntimeError(
+                f"learned_states={self.learned_states!r} has no states: train with a DataModule "
+                "that serves obs_*_train (set up at fit), or call init_states(...) first"
+            )
+        if self.states is None:
+            pred = self.integrate_windows(y[:, 0], t)
+        elif self.learned_states == "sample":
+            pred = self.integrate_windows(self.states[index[:, 0]], t)
+        else:  # lead-in from the trajectory's first sample, as many steps as the longest
+            traj = torch.searchsorted(self.traj_first, index[:, 0].contiguous(), right=True) - 1
+            first = self.traj_first[traj]
+            times = torch.cat([self.obs_t_train[first].to(t.dtype)[:, None], t], 1)
+            lead = int((index[:, 0] - first).max()) * self.substeps
+            if lead:
+                n = torch.tensor([lead] + [self.substeps] * (t.shape[1] - 1))
+                pred = self.integrate_windows(self.states[traj], times, n)[:, 1:]
+            else:  # every window starts its trajectory
+                pred = self.integrate_windows(self.states[traj], t)
+        fit = nn.functional.mse_loss(pred[:, 1:], y[:, 1:])
+        if self.states is None:
+            return {"loss": fit}
+        anchor = nn.functional.mse_loss(pred[:, 0], y[:, 0])
+        return {"loss": fit + self.state_weight * anchor, "fit": fit, "anchor": anchor}
+
+    def training_loss(self, batch: tuple[Tensor, ...]) -> dict[str, Tensor]:
+        batch = self._batch(batch)
+        if self.objective == "trajectory":
+            return self.window_loss(batch)
         y, dydt = batch
         return {"loss": nn.functional.mse_loss(self(y), dydt)}
 
-    def validation_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> None:
-        y, dydt = batch
-        self.val_mse(self(y), dydt)
+    def _eval_pair(self, batch: tuple[Tensor, ...]) -> tuple[Tensor, Tensor]:
+        """(prediction, target) of a held-out batch: ``dy/dt``, or a window's samples
+        after its observed start."""
+        batch = self._batch(batch)
+        if self.objective == "trajectory":
+            y, t = batch[0], batch[1]
+            return self.integrate_windows(y[:, 0], t)[:, 1:].reshape(-1), y[:, 1:].reshape(-1)
+        return self(batch[0]), batch[1]
+
+    def validation_step(self, batch: tuple[Tensor, ...], batch_idx: int) -> None:
+        self.val_mse(*self._eval_pair(batch))
         self.log("val/loss", self.val_mse, prog_bar=True)
 
-    def test_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> None:
-        y, dydt = batch
-        self.test_mse(self(y), dydt)
+    def test_step(self, batch: tuple[Tensor, ...], batch_idx: int) -> None:
+        self.test_mse(*self._eval_pair(batch))
         self.log("test/loss", self.test_mse)
 
     def predict_step(self, batch: tuple[Tensor, ...], batch_idx: int) -> Tensor:
-        """The predicted ``dy/dt`` of the batch's states, ``(batch, 2k)``."""
+        """The predicted ``dy/dt`` of the batch's states, ``(batch, 2k)``; for a window
+        batch, the states integrated from each window's observed start, ``(B, K, 2k)``."""
+        if len(batch) == 3 and batch[0].ndim == 3:
+            return self.integrate_windows(batch[0][:, 0], batch[1])
         return self(batch[0])

@@ -13,7 +13,7 @@ class DissipativeHNN(DynamicsModel):
 
     ``H_θ, D_φ = MLP(y): 2k → h → h → 1`` each; ``M`` projects on the momenta
     (``momentum_only``, Rayleigh's form: friction acts on ``dp/dt`` only) or is the
-    identity (the paper's Helmholtz form). The loss is the same ``dy/dt`` MSE as the
+    identity (the paper's Helmholtz form). The objectives are the
     HNN's; rollouts report ``H_θ``, which decays where ``D_φ`` dissipates.
 
     Args:

@@ -1,0 +1,222 @@
+"""Learning from observed states: the trajectory objective beside the derivative recipe.
+
+Accuracy (issue 19): per task, seeds 0-9, each seed its own draw of the paper's noisy
+states (σ = 0.1); on the same draw three HNNs: the derivative fast recipe handed the
+exact derivatives (``TASK_fast.yaml``), the same recipe on central differences of the
+noisy states (:func:`hnn_pl.data.differences.central_differences`: what a user with a
+recording would otherwise do), and the trajectory recipe on the states only
+(``TASK_traj.yaml``, run by ``reproduce --recipe traj``, which writes
+``RESULTS_traj.md``); the spring also with half of each trajectory's samples dropped
+(``keep_fraction: 0.5``). All scored as ``reproduce`` scores: the independent
+true-energy evaluation (:mod:`independent`) and the clean protocol.
+
+Time to accuracy: the energy MSE on the paper's protocol every few steps
+(:class:`hnn_pl.callbacks.TimeToAccuracy` history, its scoring excluded) against
+training seconds, median over seeds, all objectives on the same axes
+(``docs/traj_tta.png``).
+
+Cost: one trajectory step against what its field evaluations predict (step time ÷
+(field calls per step × one field call, forward and backward, on the same rows)),
+and Lightning's overhead (``fit`` against a bare loop of the same steps).
+``HNN_PL_TRAJ_TASKS=spring`` limits the accuracy part to the spring.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from common import main, measure, ms, quiet_cli, table
+
+from hnn_pl import evaluate, reproduce, tasks
+from hnn_pl.callbacks import TimeToAccuracy
+from hnn_pl.data.differences import central_differences
+
+TITLE = "Learning from observed states (trajectory objective)"
+ROOT = Path(__file__).resolve().parents[1]
+FIGURE = ROOT / "docs" / "traj_tta.png"
+#: the tasks measured (``HNN_PL_TRAJ_TASKS`` overrides: the machine's budget)
+TASKS = tuple(os.environ.get("HNN_PL_TRAJ_TASKS", "spring,pendulum").split(","))
+#: field evaluations per step of each window method (implicit midpoint: its typical
+#: fixed-point iterations are data-dependent, so it is not in the cost table)
+EVALS = {"euler": 1, "rk4": 4, "leapfrog": 2}
+
+
+def fit(task: str, seed: int, quick: bool, central: bool) -> dict:
+    """The derivative fast recipe's HNN on ``task`` (``central``: its derivative targets
+    replaced by central differences of the same noisy states), scored as ``reproduce``
+    scores the trajectory runs; with its time-to-accuracy history."""
+    cli = quiet_cli(tasks.get(task).config("hnn", "fast"), seed, 1, 20 if quick else None)
+    dm = cli.datamodule
+    dm.prepare_data()
+    dm.setup("fit")
+    if central:
+        assert torch.equal(dm.obs_y_train, dm.x_train)  # the same noisy states
+        dm.dx_train = central_differences(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train)
+    tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every["fast"])
+    cli.trainer.callbacks.append(tta)
+    t0 = time.perf_counter()
+    cli.trainer.fit(cli.model, dm)
+    train_s = time.perf_counter() - t0 - tta.scoring_seconds
+    record = evaluate.evaluate(cli.model, dm, task)
+    return {**record, "train_s": train_s, "tta_history": tta.history}
+
+
+def _mw(values: list[float]) -> str:
+    return f"{statistics.median(values):.2e} ({max(values):.2e})"
+
+
+def accuracy(quick: bool) -> tuple[str, dict]:
+    """Every variant on every seed; the trajectory recipe through ``reproduce``
+    (``RESULTS_traj.md``)."""
+    n = 1 if quick else 10
+    task_list = ("spring",) if quick else TASKS
+    out = (Path(tempfile.mkdtemp()) if quick else ROOT) / "RESULTS_traj.md"
+    argv = ["--recipe", "traj", "--tasks", *task_list, "--models", "hnn", "--seeds", str(n)]
+    argv += ["--workers", "0", "--out", str(out)] + (["--max-steps", "20"] if quick else [])
+    reproduce.main(argv)
+    records = json.loads(out.with_suffix(".json").read_text())["runs"]
+    runs = {}
+    for task in task_list:
+        runs[task, "exact derivatives (fast recipe)"] = [
+            fit(task, s, quick, False) for s in range(n)
+        ]
+        runs[task, "central differences (fast recipe)"] = [
+            fit(task, s, quick, True) for s in range(n)
+        ]
+        runs[task, "states only (traj recipe)"] = [
+            r for r in records if r["task"] == task and "error" not in r
+        ]
+        if task == "spring" and not quick:
+            half = ("--data.init_args.keep_fraction=0.5",)
+            steps = 20 if quick else None
+            runs[task, "half the samples (traj recipe)"] = [
+                reproduce.run_one(task, "hnn", s, steps, "traj", half) for s in range(n)
+            ]
+    rows = []
+    for (task, name), rs in runs.items():
+        ind = [r["independent"]["energy_mse"] for r in rs]
+        clean = [r["clean"]["energy_mse"] for r in rs]
+        train = statistics.median(r["train_s"] for r in rs)
+        per_seed = ", ".join(f"{x:.1e}" for x in ind)
+        rows.append([task, name, len(rs), _mw(ind), _mw(clean), f"{train:.1f}", per_seed])
+        print(rows[-1], flush=True)
+    head = (
+        "task | HNN trained on | seeds | true-energy MSE, median (worst) "
+        "| clean-protocol energy MSE | train s (median) | true-energy MSE per seed"
+    )
+    return table(head, rows), runs
+
+
+def figure(runs: dict, quick: bool) -> str:
+    """Median energy MSE (paper's protocol) against training seconds, both recipes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    task_list = sorted({task for task, _ in runs})
+    fig, axes = plt.subplots(1, len(task_list), figsize=(4.5 * len(task_list), 3.4), squeeze=False)
+    axes = axes[0]
+    for ax, task in zip(axes, task_list, strict=True):
+        for (t, name), rs in runs.items():
+            if t != task or "half" in name:
+                continue
+            n = min(len(r["tta_history"]) for r in rs)
+            if n == 0:
+                continue
+            secs = [statistics.median(r["tta_history"][i][1] for r in rs) for i in range(n)]
+            err = [statistics.median(r["tta_history"][i][2] for r in rs) for i in range(n)]
+            ax.loglog(secs, err, marker=".", label=name)
+        ax.axhline(tasks.get(task).published["hnn"].energy_mse, color="k", lw=0.8, ls="--")
+        ax.set(
+            title=task, xlabel="training seconds (1 thread)", ylabel="energy MSE, paper's protocol"
+        )
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    out = Path(tempfile.mkdtemp()) / FIGURE.name if quick else FIGURE
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out.name
+
+
+def cost_row(method: str, substeps: int, quick: bool) -> list:
+    """One row of :func:`cost`: the spring trajectory recipe with ``method``."""
+    over = (f"--model.init_args.traj_method={method}", f"--model.init_args.substeps={substeps}")
+    n_steps = 20 if quick else 60
+    cli = quiet_cli("spring_traj.yaml", 0, 1, n_steps, over)
+    dm, model = cli.datamodule, cli.model
+    dm.prepare_data()
+    dm.setup("fit")
+    y, t, index = next(iter(dm.train_dataloader()))
+    model.init_states(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train)
+    model.train()
+    opt = torch.optim.Adam(model.param_groups(), lr=1e-4)
+    x = y[:, 0].clone()
+
+    def field_call():
+        model.field.vector_field(None, x).sum().backward()
+
+    def step():
+        opt.zero_grad()
+        model.training_loss((y, t, index))["loss"].backward()
+        opt.step()
+
+    call_s, _ = measure(field_call)
+    step_s, _ = measure(step)
+    calls = (y.shape[1] - 1) * substeps * EVALS[method] + (method == "leapfrog")
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        step()
+    bare = time.perf_counter() - t0
+    cli = quiet_cli("spring_traj.yaml", 0, 1, n_steps, over)
+    cli.datamodule.prepare_data()
+    t0 = time.perf_counter()
+    cli.trainer.fit(cli.model, cli.datamodule)
+    lit = time.perf_counter() - t0
+    return [
+        f"{method}, substeps {substeps}",
+        len(y),
+        calls,
+        ms(call_s),
+        ms(step_s),
+        f"{step_s / (calls * call_s):.2f}",
+        f"{bare:.2f}",
+        f"{lit:.2f}",
+        f"{100 * (lit / bare - 1):.0f} %",
+    ]
+
+
+def cost(quick: bool) -> str:
+    """Trajectory step ÷ its field evaluations, and Lightning's share, spring HNN."""
+    rows = []
+    settings = [("rk4", 1), ("rk4", 2), ("leapfrog", 2)]
+    for method, substeps in settings[:1] if quick else settings:
+        rows.append(cost_row(method, substeps, quick))
+        print(rows[-1], flush=True)
+    head = (
+        "window method | windows per step | field calls per step "
+        "| one field call, fwd+bwd (ms) | trajectory step (ms) | step ÷ (calls × call) "
+        "| bare loop s | Lightning fit s | Lightning overhead"
+    )
+    return table(head, rows)
+
+
+def run(quick: bool = False) -> str:
+    acc, runs = accuracy(quick)
+    fig = figure(runs, quick)
+    return (
+        acc
+        + f"\n\nTime to accuracy, both objectives on the same axes: `docs/{fig}`.\n\n"
+        + cost(quick)
+    )
+
+
+if __name__ == "__main__":
+    main({"trajectory": sys.modules[__name__]}, None)

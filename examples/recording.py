@@ -1,0 +1,61 @@
+"""Learn from your own recording: ``python examples/recording.py`` (seconds, one core).
+
+Writes ``springs.csv`` (8 noisy mass-spring orbits, each sampled at its own uneven
+times, no derivatives), trains an HNN on windows of its states and rolls it out from
+the first sample of each held-out orbit. Prints the held-out errors beside those of
+the true system's own rollout from the same noisy starts (the floor the noise sets).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import lightning as L
+import numpy as np
+import torch
+
+from hnn_pl import HNN, Protocol, RecordingData
+from hnn_pl.rollouts import evaluate
+from hnn_pl.systems import MassSpring
+
+
+def write_recording(path: str, n: int = 8, seed: int = 0) -> None:
+    """``n`` orbits of ``H = q² + p²`` (``q = r cos(2t + φ)``, ``p = −r sin(2t + φ)``),
+    40 samples each at uneven times, noise σ = 0.05."""
+    rng, rows = np.random.default_rng(seed), []
+    for i in range(n):
+        t = np.sort(rng.uniform(0.0, 3.0, 40))
+        r, phi = rng.uniform(0.3, 1.0), rng.uniform(0.0, 2 * np.pi)
+        q, p = r * np.cos(2 * t + phi), -r * np.sin(2 * t + phi)
+        y = np.stack([q, p], 1) + 0.05 * rng.standard_normal((40, 2))
+        rows.append(np.column_stack([np.full(40, i), t, y]))
+    np.savetxt(
+        path, np.concatenate(rows), delimiter=",", header="trajectory,time,q1,p1", comments=""
+    )
+
+
+def main(steps: int = 200, path: str = "springs.csv") -> dict[str, float]:
+    torch.set_num_threads(1)
+    L.seed_everything(0, verbose=False)
+    write_recording(path)
+    dm = RecordingData(path, system=MassSpring(), test_fraction=0.25, window=4)
+    model = HNN(input_dim=2, hidden_dim=64, lr=1e-2, schedule="onecycle", objective="trajectory")
+    trainer = L.Trainer(
+        max_steps=steps,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+    )
+    trainer.fit(model, dm)
+    metrics, _ = evaluate(model, dm, Protocol(t_end=None, n_points=None))
+    return metrics
+
+
+if __name__ == "__main__":
+    m = main(int(sys.argv[1]) if len(sys.argv) > 1 else 200)
+    print(f"held-out rollouts: state MSE {m['state_mse']:.2e}, energy MSE {m['energy_mse']:.2e}")
+    print(
+        f"true system from the same starts: state MSE {m['floor_integrator_state_mse']:.2e}, "
+        f"energy MSE {m['floor_integrator_energy_mse']:.2e}"
+    )
