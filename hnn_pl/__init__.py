@@ -8,7 +8,6 @@
 from __future__ import annotations
 
 import importlib
-import importlib.util
 
 __version__ = "0.1.0"
 
@@ -37,6 +36,31 @@ _LAZY = {
     "cli_main": "hnn_pl.cli",
 }
 
+#: the submodules reachable as attributes after ``import hnn_pl`` (a fixed list: no
+#: name from elsewhere is ever imported)
+_SUBMODULES = (
+    "bump",
+    "callbacks",
+    "cli",
+    "cli_errors",
+    "config_paths",
+    "data",
+    "evaluate",
+    "integrate",
+    "loggers",
+    "models",
+    "nets",
+    "plotting",
+    "protocols",
+    "render",
+    "reproduce",
+    "rollouts",
+    "safe_io",
+    "stress",
+    "systems",
+    "tasks",
+)
+
 __all__ = sorted(_LAZY)
 
 
@@ -45,8 +69,8 @@ def __getattr__(name: str):
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
-    if not name.startswith("_") and importlib.util.find_spec(f"hnn_pl.{name}") is not None:
-        return importlib.import_module(f"hnn_pl.{name}")  # hnn_pl.bump.energy_bump(...)
+    if name in _SUBMODULES:
+        return importlib.import_module(f"{__name__}.{name}")  # name is one of _SUBMODULES
     raise AttributeError(f"module 'hnn_pl' has no attribute {name!r}")
 
 
