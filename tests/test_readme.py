@@ -26,7 +26,7 @@ source() { { set +x; } 2>/dev/null; builtin source "$@"; set -x; }
 make() {
   { set +x; } 2>/dev/null
   if [ "${1:-}" = test ]; then echo "make test: the suite running this"; set -x; return 0; fi
-  command make "$@"
+  command make -o .venv/.installed "$@"
   set -x
 }
 tensorboard() {
@@ -88,7 +88,7 @@ def test_readme_quickstart_commands_and_python_run_in_a_fresh_directory(tmp_path
     for name in ("Makefile", "pyproject.toml"):
         (tmp_path / name).symlink_to(ROOT / name)
     (tmp_path / ".venv").symlink_to(sys.prefix)
-    env = {**os.environ, "MAKEFLAGS": "-o .venv/.installed", "HNN_PL_TRACEBACK": "1"}
+    env = {**os.environ, "HNN_PL_TRACEBACK": "1"}
     sessions: list[tuple[str, str]] = []  # consecutive bash blocks: one shell, as a reader's
     for lang, code in readme_blocks():
         if lang == "bash" and sessions and sessions[-1][0] == "bash":
