@@ -573,11 +573,6 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
 
-    print(
-        f"{len(jobs)} runs on {meta['workers']} worker(s); "
-        f"data ready in {sum(data_s.values()):.1f} s",
-        flush=True,
-    )
     run_start = time.perf_counter()
     keep = args.models_dir is not None
     model_dir = Path(args.models_dir) if keep else Path(tempfile.mkdtemp(prefix="hnn_pl_models_"))
@@ -588,6 +583,11 @@ def main(argv: list[str] | None = None) -> int:
 
     paths = {job: weights(*job) for job in jobs if _through_hnn(job[0])}
     try:
+        print(
+            f"{len(jobs)} runs on {meta['workers']} worker(s); "
+            f"data ready in {sum(data_s.values()):.1f} s",
+            flush=True,
+        )
         _run_jobs(jobs, args, done, paths)
         if paths:
             hnns = {(t, "hnn", s): weights(t, "hnn", s) for t, _, s in paths}
