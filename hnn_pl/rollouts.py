@@ -246,8 +246,9 @@ def _run_state(model: Any, dm: Any, p: Protocol, floors: bool = True) -> Rollout
         r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
     if floors:
         r.floors = error_floors(dm, r.t, y_true, p)
-    if callable(getattr(dm, "true_field", None)):
-        r.f_true = dm.true_field(r.t, y_true).to(y_pred)
+    f_true = dm.true_field(r.t, y_true) if callable(getattr(dm, "true_field", None)) else None
+    if f_true is not None:
+        r.f_true = f_true.to(y_pred)
         r.f_pred = field.vector_field(None, y_true.flatten(0, 1)).reshape(y_true.shape)
     return r
 

@@ -375,6 +375,12 @@ class RecordingData(TrajectoryDataModule):
         )
         return data
 
+    def true_field(self, t: Tensor, y: Tensor) -> None:
+        """``None``: a recording has no true ``dy/dt`` (an energy's field is a fit, not the
+        truth), so no field error is scored; :class:`RealPendulumData` differences its
+        one measured segment."""
+        return None
+
     def rollout_target(
         self, t_end: float | None = None, n_points: int | None = None
     ) -> tuple[Tensor, Tensor]:
