@@ -370,8 +370,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         vpts = [r["clean"].get("valid_time") for r in runs]
         vpts = [v for v in vpts if v is not None and math.isfinite(v)]
         vpt = f"{statistics.median(vpts):.3g} ({min(vpts):.3g})" if vpts else "—"
-        pixel = tasks.get(row["task"]).kind == "pixel"
-        field = "n/a" if pixel else _fmt(*row["clean_field"])
+        field = _fmt(*row["clean_field"]) if tasks.get(row["task"]).has_true_field else "n/a"
         paper = tasks.get(row["task"]).paper_motion
         target = "—" if paper is None else f"{paper.state_mse:.3g} / {_fmt(paper.field_error)}"
         used = sorted({r.get("tta_state_target", math.inf) for r in runs})

@@ -83,6 +83,12 @@ class Task:
         """The models with a bundled config of ``recipe``."""
         return self.traj_models if recipe == "traj" else self.models
 
+    @property
+    def has_true_field(self) -> bool:
+        """Whether the clean protocol scores a field error (pixel models' latent field
+        has no true counterpart)."""
+        return self.kind != "pixel"
+
     def config(self, model: str = "hnn", recipe: str = "paper") -> str:
         """The bundled config's file name, e.g. ``spring_fast_baseline.yaml``."""
         if recipe not in RECIPES or model not in self.models_for(recipe):
