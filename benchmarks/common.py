@@ -116,7 +116,7 @@ def quiet_cli(config: str, seed: int, threads: int = 1, max_steps: int | None = 
     """A bundled config as ``fit`` runs it, minus logger, checkpoints, progress bar,
     callbacks and validation, built but not run: ``cli.trainer.fit(cli.model,
     cli.datamodule)`` trains it. ``extra``: more CLI arguments (overrides)."""
-    from hnn_pl.cli import cli_main
+    from hnn_pl.commands.cli import cli_main
 
     args = [f"--config={config}", f"--seed_everything={seed}", f"--threads={threads}"]
     args += ["--trainer.logger=false", "--trainer.enable_checkpointing=false"]

@@ -17,8 +17,7 @@ import sys
 from common import main, quiet_cli, table
 
 from hnn_pl import tasks
-from hnn_pl.evaluate import evaluate_reference
-from hnn_pl.protocols import ReferenceProtocol
+from hnn_pl.evaluation import ReferenceProtocol, evaluate, task_protocol
 
 TITLE = "Independent evaluation (true energy)"
 INDEPENDENT = ReferenceProtocol(atol=1e-12)
@@ -37,8 +36,10 @@ def run(quick: bool = False) -> str:
                     tasks.get(task).config(model, "fast"), seed, 1, 20 if quick else None
                 )
                 cli.trainer.fit(cli.model, cli.datamodule)
-                indep.append(evaluate_reference(cli.model, cli.datamodule, task, INDEPENDENT))
-                paper.append(evaluate_reference(cli.model, cli.datamodule, task))
+                indep.append(evaluate(cli.model, cli.datamodule, INDEPENDENT)[0])
+                paper.append(
+                    evaluate(cli.model, cli.datamodule, task_protocol(task, "reference"))[0]
+                )
             e = [r["energy_mse"] for r in indep]
             p = [r["energy_mse"] for r in paper]
             rows.append(

@@ -17,7 +17,7 @@ import sys
 import torch
 from common import main, measure, quiet_cli, table
 
-from hnn_pl import rollout, tasks
+from hnn_pl import evaluation, rollout, tasks
 
 TITLE = "Implicit midpoint against dopri5 on learned fields"
 TASKS = ("spring", "pendulum", "two_body", "three_body")
@@ -42,11 +42,11 @@ def score(model, dm, y0, t, method, **kw) -> tuple[float, float, float]:
     run = lambda: rollout(model, y0, t, method=method, energy=energy, **kw)  # noqa: E731
     seconds, _ = measure(run, min_run_time=0.5, once_above=0.3)
     traj = run()
-    e_mse = float(((traj.energy - traj.energy[:1]) ** 2).mean())
+    e_mse = float(((traj.e_pred - traj.e_pred[:1]) ** 2).mean())
     dtype = next(model.parameters()).dtype
     with torch.no_grad():
         scale = float(model.field.hamiltonian(dm.reference_inputs(4096).to(dtype)).std())
-    drift = float(((traj.h - traj.h[:1]).abs().amax(0) / scale).mean())
+    drift = float(((traj.h_pred - traj.h_pred[:1]).abs().amax(0) / scale).mean())
     return seconds, e_mse, drift
 
 
@@ -54,7 +54,7 @@ def run(quick: bool = False) -> str:
     rows, verdicts = [], []
     for task in TASKS[:1] if quick else TASKS:
         model, dm = trained(task, quick)
-        clean = tasks.get(task).clean
+        clean = evaluation.task_protocol(task, "clean")
         _, y_true = dm.rollout_target(clean.t_end, clean.n_points)
         y0 = y_true[0, :20].double()
         horizon = 10 * clean.t_end / (10 if quick else 1)

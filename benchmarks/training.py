@@ -72,7 +72,7 @@ def steps_table(quick: bool) -> str:
 def lightning_table(quick: bool) -> str:
     import lightning as L
 
-    from hnn_pl.cli import quiet_lightning
+    from hnn_pl.commands.cli import quiet_lightning
     from hnn_pl.data import TensorBatches
     from hnn_pl.models import HNN
 

@@ -11,7 +11,7 @@ recording would otherwise do), and the trajectory recipe on the states only
 true-energy evaluation (:mod:`independent`) and the clean protocol.
 
 Time to accuracy: the energy MSE on the paper's protocol every few steps
-(:class:`hnn_pl.callbacks.TimeToAccuracy` history, its scoring excluded) against
+(:class:`hnn_pl.commands.tta.TimeToAccuracy` history, its scoring excluded) against
 training seconds, median over seeds, all objectives on the same axes
 (``docs/traj_tta.png``).
 
@@ -34,9 +34,11 @@ from pathlib import Path
 import torch
 from common import main, measure, ms, quiet_cli, table
 
-from hnn_pl import evaluate, reproduce, tasks
-from hnn_pl.callbacks import TimeToAccuracy
+from hnn_pl import tasks
+from hnn_pl.commands import reproduce
+from hnn_pl.commands.tta import TimeToAccuracy
 from hnn_pl.data.differences import central_differences
+from hnn_pl.evaluation import evaluate_task
 
 TITLE = "Learning from observed states (trajectory objective)"
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,7 +66,7 @@ def fit(task: str, seed: int, quick: bool, central: bool) -> dict:
     t0 = time.perf_counter()
     cli.trainer.fit(cli.model, dm)
     train_s = time.perf_counter() - t0 - tta.scoring_seconds
-    record = evaluate.evaluate(cli.model, dm, task)
+    record = evaluate_task(task, cli.model, dm)
     return {**record, "train_s": train_s, "tta_history": tta.history}
 
 
@@ -116,10 +118,9 @@ def accuracy(quick: bool) -> tuple[str, dict]:
 
 def figure(runs: dict, quick: bool) -> str:
     """Median energy MSE (paper's protocol) against training seconds, both recipes."""
-    import matplotlib
+    from hnn_pl.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     task_list = sorted({task for task, _ in runs})
     fig, axes = plt.subplots(1, len(task_list), figsize=(4.5 * len(task_list), 3.4), squeeze=False)

@@ -1,11 +1,11 @@
 """Time to accuracy: training seconds from the start of ``Trainer.fit`` until the HNN
-first meets the joint criterion of :class:`hnn_pl.callbacks.TimeToAccuracy` (energy MSE
+first meets the joint criterion of :class:`hnn_pl.commands.tta.TimeToAccuracy` (energy MSE
 on the paper's protocol at the published value *and* clean state MSE at the paper
 recipe's median, ``tasks.get(task).paper_motion``), per task and recipe, over seeds
 (each seed draws its own data), with 1 and 2 torch threads.
 
 Each run is the bundled config as ``fit`` runs it (logger, checkpoints, progress bar
-and rollout callbacks off) plus :class:`hnn_pl.callbacks.TimeToAccuracy` with
+and rollout callbacks off) plus :class:`hnn_pl.commands.tta.TimeToAccuracy` with
 ``stop=True``; the callback's own scoring is excluded from the time.
 """
 
@@ -20,7 +20,7 @@ import torch
 from common import main, quiet_cli, table
 
 from hnn_pl import tasks
-from hnn_pl.callbacks import TimeToAccuracy
+from hnn_pl.commands.tta import TimeToAccuracy
 
 TITLE = "Time to accuracy"
 STATE_TASKS = ("spring", "pendulum", "real_pendulum", "two_body", "three_body")

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from hnn_pl import rollout  # noqa: E402
 from hnn_pl.bump import main as bump  # noqa: E402
-from hnn_pl.cli import cli_main  # noqa: E402
+from hnn_pl.commands.cli import cli_main  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -56,9 +56,9 @@ def double_well_figure() -> None:
     ax1.plot(truth[:, :, 0], truth[:, :, 1], "k-", lw=1)
     for (name, model), color in zip(models.items(), ("C0", "C3"), strict=True):
         traj = rollout(model, y0, t, energy=well.energy)
-        ax1.plot(traj.y[:, :, 0], traj.y[:, :, 1], "--", color=color, lw=1)
+        ax1.plot(traj.y_pred[:, :, 0], traj.y_pred[:, :, 1], "--", color=color, lw=1)
         for b in range(y0.shape[0]):
-            ax2.plot(t, traj.energy[:, b], color=color, label=name if b == 0 else None)
+            ax2.plot(t, traj.e_pred[:, b], color=color, label=name if b == 0 else None)
     for b in range(y0.shape[0]):
         ax2.plot(t, well.energy(truth[:, b]), "k-", lw=1, label="truth" if b == 0 else None)
     ax1.set(xlabel="q", ylabel="p", title="double well: truth (black), HNN (blue), baseline (red)")

@@ -21,8 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from hnn_pl import rollout  # noqa: E402
-from hnn_pl.cli import cli_main  # noqa: E402
-from hnn_pl.reproduce import run_one  # noqa: E402
+from hnn_pl.commands.cli import cli_main  # noqa: E402
+from hnn_pl.commands.reproduce import run_one  # noqa: E402
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 MODELS = {"baseline": "baseline", "hnn": "HNN", "dissipative": "dissipative HNN"}
@@ -80,7 +80,7 @@ def figure(path: Path) -> None:
         if measured is None:
             measured = energy(y_true.double())[:, 0]
             ax.plot(t, measured, "k.", ms=3, label="measured")
-        ax.plot(t, traj.energy[:, 0], label=MODELS[model])
+        ax.plot(t, traj.e_pred[:, 0], label=MODELS[model])
     ax.set(xlabel="t (s)", ylabel="2.4(1 − cos θ) + θ̇²", title="held-out segment, from its start")
     ax.legend(frameon=False)
     fig.tight_layout()

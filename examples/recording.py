@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from hnn_pl import HNN, Protocol, RecordingData
-from hnn_pl.rollouts import evaluate
+from hnn_pl.evaluation import evaluate
 from hnn_pl.systems import MassSpring
 
 

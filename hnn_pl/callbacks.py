@@ -1,9 +1,7 @@
-"""Callbacks: thin schedulers around the rollout engine (:mod:`hnn_pl.rollouts`)."""
+"""Callbacks: thin schedulers around the evaluation (:mod:`hnn_pl.evaluation`)."""
 
 from __future__ import annotations
 
-import math
-import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -13,27 +11,8 @@ from lightning.pytorch import Callback, LightningModule, Trainer
 from lightning.pytorch.callbacks import BasePredictionWriter, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from hnn_pl import rollouts, tasks
-from hnn_pl.protocols import Protocol
+from hnn_pl.evaluation import Rollout, evaluate, rollout, task_protocol, view_of
 from hnn_pl.safe_io import save_atomic
-
-
-def task_protocol(task: str, protocol: str, overrides: dict[str, Any] | None) -> Protocol:
-    """``tasks.get(task).protocol(protocol)`` with ``overrides``, checked now
-    (``ValueError`` on an unknown task, protocol or field, or a bad value)."""
-    try:
-        p = tasks.get(task).protocol(protocol)
-    except KeyError as e:
-        raise ValueError(e.args[0]) from None
-    if not isinstance(p, Protocol):
-        raise ValueError(
-            f"the {protocol!r} protocol of task {task!r} is scipy's reference procedure "
-            "(hnn_pl.evaluate.evaluate_reference), not a rollout protocol; use 'clean'"
-        )
-    try:
-        return p.replace(**(overrides or {}))
-    except TypeError as e:
-        raise ValueError(f"overrides {overrides}: {e}") from None
 
 
 class FinalCheckpoint(ModelCheckpoint):
@@ -66,10 +45,10 @@ class RolloutCallback(Callback):
 
     Every ``every_n_epochs`` epochs and at the end of ``fit`` (only with a logger:
     nothing is computed that is not recorded), and in ``test``, rank zero:
-    :func:`hnn_pl.rollouts.evaluate` on all held-out starts in one batch, logged as
+    :func:`hnn_pl.evaluation.evaluate` on all held-out starts in one batch, logged as
     ``rollout/<metric>`` (``energy_mse`` = ``mean_{t,b} (E(y_true) − E(y_pred))²``,
     ``state_mse``, ``motion_error``, ``valid_time``, ``conserved_drift`` (HNN),
-    ``field_error`` (state models: :func:`hnn_pl.rollouts.field_error`, the relative
+    ``field_error`` (state models: :func:`hnn_pl.evaluation.metrics.field_error`, the relative
     error of ``f_θ`` on the true states); pixel: ``pixel_mse``,
     ``latent_mse``, ``probe_mse``) over the rows that stayed finite, and
     ``rollout/diverged_rows``: a diverging row stops alone and the fit goes on.
@@ -78,8 +57,8 @@ class RolloutCallback(Callback):
 
     Args:
         task: a name in :data:`hnn_pl.tasks.TASKS`.
-        protocol: ``"clean"`` or ``"reference"`` (pixel only; the state tasks'
-            reference is scipy's procedure, run by ``reproduce``).
+        protocol: ``"clean"``, ``"reference"`` (the state tasks': scipy's procedure)
+            or ``"independent"``.
         every_n_epochs: period during training; ``0``: only at the end of fit.
         log_images: draw the figures.
         overrides: protocol fields to change, e.g. ``{method: rk4, step_size: 0.05}``.
@@ -114,7 +93,7 @@ class RolloutCallback(Callback):
         for logger in trainer.loggers:
             logger.log_hyperparams(run)
 
-    def _images(self, trainer: Trainer, r: rollouts.Rollout) -> None:
+    def _images(self, trainer: Trainer, r: Rollout) -> None:
         if not (self.log_images and isinstance(trainer.logger, TensorBoardLogger)):
             return
         from hnn_pl import plotting
@@ -122,7 +101,7 @@ class RolloutCallback(Callback):
         writer, step = trainer.logger.experiment, trainer.global_step
         for tag, fig in plotting.figures(r).items():
             writer.add_figure(tag, fig, step)
-        if r.is_pixel:
+        if r.has_frames:
             writer.add_figure("rollout/frames", plotting.frames_figure(r), step)
 
     def _log_during_fit(self, trainer: Trainer, pl_module: LightningModule) -> None:
@@ -131,7 +110,7 @@ class RolloutCallback(Callback):
         if trainer.global_step == self._last_logged_step:
             return
         self._last_logged_step = trainer.global_step
-        metrics, r = rollouts.evaluate(pl_module, trainer.datamodule, self.protocol)
+        metrics, r = evaluate(pl_module, trainer.datamodule, self.protocol)
         tagged = {f"rollout/{k}": v for k, v in metrics.items()}
         for logger in trainer.loggers:
             logger.log_metrics(tagged, step=trainer.global_step)
@@ -147,7 +126,7 @@ class RolloutCallback(Callback):
     def on_test_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if not trainer.is_global_zero:
             return
-        metrics, r = rollouts.evaluate(pl_module, trainer.datamodule, self.protocol)
+        metrics, r = evaluate(pl_module, trainer.datamodule, self.protocol)
         for k, v in metrics.items():
             pl_module.log(f"rollout/{k}", v, rank_zero_only=True)
         self._images(trainer, r)
@@ -217,14 +196,9 @@ class RolloutWriter(BasePredictionWriter):
 
     def _given_starts(self, pl_module: LightningModule, dm: Any) -> dict[str, Any]:
         y0 = torch.load(self.starts, weights_only=True)
-        p = self.protocol
-        if rollouts.is_pixel_model(pl_module):
-            t = torch.arange(p.n_points or 200, dtype=torch.float64) * pl_module.frame_dt
-            energy = None
-        else:
-            t = torch.linspace(0.0, p.t_end or 1.0, p.n_points or 100, dtype=torch.float64)
-            energy = dm.energy if getattr(dm, "has_energy", True) else None
-        out = rollouts.rollout(pl_module, y0, t, dtype=p.dtype, energy=energy, **p.solver_kwargs())
+        p, view = self.protocol, view_of(pl_module)
+        t = view.times(p.t_end, p.n_points)
+        out = rollout(pl_module, y0, t, dtype=p.dtype, energy=view.energy(dm), **p.solver_kwargs())
         return out.as_dict()
 
     def write_on_epoch_end(
@@ -240,7 +214,7 @@ class RolloutWriter(BasePredictionWriter):
         if self.starts is not None:
             payload = self._given_starts(pl_module, dm)
         else:
-            metrics, r = rollouts.evaluate(pl_module, dm, self.protocol)
+            metrics, r = evaluate(pl_module, dm, self.protocol)
             payload = {
                 "t": r.t,
                 "y_true": r.y_true,
@@ -264,120 +238,3 @@ class RolloutWriter(BasePredictionWriter):
         stopped = int((status != 0).sum()) if status is not None else 0
         note = f"; {stopped} of {len(status)} rows stopped early (see 'status')" if stopped else ""
         print(f"wrote rollouts {shape} (T, B, D) to {self.path}{note}", flush=True)
-
-
-class TimeToAccuracy(Callback):
-    """Training time until the model reaches the paper's accuracy *and* the paper
-    recipe's motion.
-
-    Every ``every_n_steps`` optimiser steps (rank zero) the model is scored on its
-    task's reference protocol (state tasks: :func:`hnn_pl.evaluate.score_reference`,
-    by default batched float64 ``dopri5`` at the protocol's ≈1e-6 accuracy, truth
-    prepared once in ``setup``; pixel: the engine's latent rollout and probe).
-    A check passes when all of:
-
-    - the energy MSE on the paper's protocol is ≤ ``target`` (the published HNN value);
-    - :func:`hnn_pl.rollouts.motion_error` ≤ ``max_motion_error`` (1 for a model
-      that never moves: a still state conserves any energy);
-    - the state MSE on the task's clean protocol (:func:`hnn_pl.rollouts.run`
-      without the error floors, truth computed once) is ≤ ``state_target``, the
-      paper recipe's median over seeds (:attr:`hnn_pl.tasks.Task.paper_motion`). It
-      is computed only at checks that pass the first two, until the first pass.
-
-    Logged: ``tta/energy_mse``, ``tta/motion_error``, ``tta/state_mse`` (when
-    computed); once passed, ``tta/seconds`` (training time since ``setup``, scoring
-    excluded) and ``tta/step``; ``stop`` ends the fit there. Afterwards
-    :attr:`reached` is ``{"step", "seconds", "wall_seconds", "energy_mse",
-    "motion_error", "state_mse"}`` or ``None``; :attr:`history` every ``(step,
-    seconds, energy_mse, motion_error, state_mse)`` (``state_mse`` NaN where not
-    computed); :attr:`scoring_seconds` the scoring's own cost.
-
-    Args:
-        task: a name in :data:`hnn_pl.tasks.TASKS`.
-        target: the energy MSE to reach (``None``: the published HNN value).
-        every_n_steps: scoring period in optimiser steps.
-        stop: end the fit when the target is reached.
-        solver: ``"torch"`` or ``"scipy"`` (the published RK45; slower).
-        max_motion_error: the largest motion error that counts (0.25: a model at
-            half the true speed; trained models measure 0.001–0.07 on the
-            reference protocols, untrained ones ≈ 1).
-        state_target: the clean state MSE to reach (``None``: the paper recipe's
-            median from the registry; ``math.inf`` or a task without one: no
-            state condition).
-    """
-
-    def __init__(
-        self,
-        task: str = "spring",
-        target: float | None = None,
-        every_n_steps: int = 50,
-        stop: bool = False,
-        solver: str = "torch",
-        max_motion_error: float = 0.25,
-        state_target: float | None = None,
-    ) -> None:
-        super().__init__()
-        self.task = tasks.get(task)
-        if not max_motion_error > 0:
-            raise ValueError(f"max_motion_error must be > 0, got {max_motion_error}")
-        self.max_motion_error = float(max_motion_error)
-        if solver not in ("torch", "scipy"):
-            raise ValueError(f"solver must be 'torch' or 'scipy', got {solver!r}")
-        if every_n_steps < 1:
-            raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
-        self.target = self.task.published["hnn"].energy_mse if target is None else float(target)
-        if state_target is None:
-            paper = self.task.paper_motion
-            state_target = math.inf if paper is None else paper.state_mse
-        if not state_target > 0:
-            raise ValueError(f"state_target must be > 0, got {state_target}")
-        self.state_target = float(state_target)
-        self.every_n_steps, self.stop, self.solver = every_n_steps, stop, solver
-        self.reached: dict[str, float] | None = None
-        self.history: list[tuple[int, float, float, float, float]] = []
-        self.scoring_seconds = 0.0
-
-    def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
-        from hnn_pl.evaluate import reference_case, score_reference
-
-        dm = trainer.datamodule
-        dm.setup(stage)
-        if self.task.kind == "state":
-            case = reference_case(dm, self.task.reference)
-            self._score = lambda m: score_reference(m, case, self.solver)
-        else:
-            self._score = lambda m: rollouts.evaluate(m, dm, self.task.reference)[0]
-        self._state = lambda m: rollouts.score(rollouts.run(m, dm, self.task.clean, floors=False))
-        self._next = self.every_n_steps
-        self._start = time.perf_counter()
-        self.scoring_seconds = 0.0
-
-    def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *args) -> None:
-        step = trainer.global_step
-        if step < self._next or not trainer.is_global_zero:
-            return
-        self._next = step + self.every_n_steps - step % self.every_n_steps
-        t0 = time.perf_counter()
-        was_training = pl_module.training
-        pl_module.eval()
-        m = self._score(pl_module)
-        energy, motion, state = m["energy_mse"], m["motion_error"], math.nan
-        passed = energy <= self.target and motion <= self.max_motion_error
-        if passed and self.reached is None and math.isfinite(self.state_target):
-            state = self._state(pl_module)["state_mse"]
-            passed = state <= self.state_target
-        pl_module.train(was_training)
-        seconds = t0 - self._start - self.scoring_seconds
-        self.scoring_seconds += time.perf_counter() - t0
-        self.history.append((step, seconds, energy, motion, state))
-        metrics = {"tta/energy_mse": energy, "tta/motion_error": motion}
-        if not math.isnan(state):
-            metrics["tta/state_mse"] = state
-        if self.reached is None and passed:
-            wall = t0 - self._start
-            self.reached = {"step": step, "seconds": seconds, "wall_seconds": wall}
-            self.reached.update(energy_mse=energy, motion_error=motion, state_mse=state)
-            metrics.update({"tta/seconds": seconds, "tta/step": float(step)})
-            trainer.should_stop = trainer.should_stop or self.stop
-        for logger in trainer.loggers:
-            logger.log_metrics(metrics, step=step)

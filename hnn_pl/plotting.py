@@ -5,10 +5,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hnn_pl.rollouts import Rollout
+from hnn_pl.evaluation import Rollout
 
 
-def _pyplot():
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (the one matplotlib set-up)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -23,7 +24,7 @@ def phase_portrait(r: Rollout, max_lines: int = 4):
     ``(q, p)`` for one degree of freedom; for more, the first half of the state is
     read as body positions ``(x₁, y₁, x₂, y₂, …)`` and each body's path is drawn.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(4.5, 4.5), dpi=80)
     d = r.y_true.shape[-1]
     for b in range(min(max_lines, r.y_true.shape[1])):
@@ -47,7 +48,7 @@ def _positions(path):
 
 def energy_over_time(r: Rollout, max_lines: int = 4):
     """Physical energy along the true and predicted paths, and ``H_θ`` if present."""
-    plt = _pyplot()
+    plt = pyplot()
     ncols = 1 if r.h_pred is None else 2
     fig, axes = plt.subplots(1, ncols, figsize=(4.5 * ncols, 3.5), dpi=80, squeeze=False)
     t = r.t.double().cpu()
@@ -59,7 +60,7 @@ def energy_over_time(r: Rollout, max_lines: int = 4):
     axes[0, 0].set(xlabel="t", ylabel="energy", title="energy: true (solid), predicted (dashed)")
     if r.h_pred is not None:
         axes[0, 1].set(xlabel="t", ylabel="H_θ", title="learned H_θ along the rollout")
-    if r.is_pixel:
+    if r.has_frames:
         dt = float(r.t[1] - r.t[0]) if len(r.t) > 1 else float("nan")
         note = (
             f"The true paths are gym's semi-implicit Euler steps (dt = {dt:.3g}), which do not "
@@ -85,7 +86,7 @@ def latent_portrait(r: Rollout, max_lines: int = 4):
 def figures(r: Rollout) -> dict:
     """``{tag: figure}`` of a rollout: ``rollout/phase_portrait`` (pixel models: the
     latent plane) and ``rollout/energy`` (when the data has an energy)."""
-    portrait = latent_portrait(r) if r.is_pixel else phase_portrait(r)
+    portrait = latent_portrait(r) if r.has_frames else phase_portrait(r)
     if r.e_true is None:
         return {"rollout/phase_portrait": portrait}
     return {"rollout/phase_portrait": portrait, "rollout/energy": energy_over_time(r)}
@@ -93,7 +94,7 @@ def figures(r: Rollout) -> dict:
 
 def frames_figure(r: Rollout, trajectory: int = 0, n_strip: int = 10):
     """:func:`frames_image` with its rows (true, predicted) and times labelled."""
-    plt = _pyplot()
+    plt = pyplot()
     image = frames_image(r, trajectory, n_strip)[0]
     height, width = image.shape
     n = min(n_strip, r.x_true.shape[0])

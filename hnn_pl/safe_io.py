@@ -7,6 +7,8 @@
   written to a temporary name beside it and renamed into place, so a failure (a full
   disk, Ctrl-C) leaves the previous file and no partial one; a full disk is
   ``OSError("no space left on <directory>")``.
+- :func:`check_model_class`: refuse a checkpoint of another model class (the model,
+  the CLI and ``bump`` use it), comparing names without importing any.
 - :func:`require_memory`: refuse work whose estimated memory exceeds the machine's.
 """
 
@@ -16,6 +18,7 @@ import errno
 import io
 import os
 import pickle
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +63,43 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(ckpt, dict):
         raise ValueError(f"checkpoint {path}: holds a {type(ckpt).__name__}, not a checkpoint")
     return ckpt
+
+
+def loaded_class(path: str) -> type | None:
+    """The class at the dotted ``path`` if its module is already imported, else
+    ``None``. Never imports: a name read from a file must not run code."""
+    module, _, name = path.rpartition(".")
+    obj = sys.modules.get(module)
+    for part in name.split("."):
+        obj = getattr(obj, part, None) if obj is not None else None
+    return obj if isinstance(obj, type) else None
+
+
+def class_name(cls: type) -> str:
+    """``module.QualName`` of ``cls``."""
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def check_model_class(ckpt: dict[str, Any], expected: str | type, where: str) -> None:
+    """Refuse a checkpoint whose saved model class (``hnn_pl_model_class``, or
+    LightningCLI's ``hyper_parameters["_class_path"]``) is not ``expected`` (a class or
+    a dotted path): ``ValueError`` naming ``where`` (e.g. ``"checkpoint C"``). Compared
+    as names: a saved name counts as the class only if spelled like it or naming the
+    same class in a module already imported."""
+    cls = expected if isinstance(expected, type) else loaded_class(expected)
+    path = expected if isinstance(expected, str) else class_name(expected)
+    names = {path} | ({class_name(cls)} if cls else set())
+    hparams = ckpt.get("hyper_parameters") or {}
+    for saved in (ckpt.get("hnn_pl_model_class"), hparams.get("_class_path")):
+        if saved is None:
+            continue
+        if not (
+            isinstance(saved, str) and (saved in names or (cls and loaded_class(saved) is cls))
+        ):
+            raise ValueError(
+                f"{where} holds a {saved} but the config builds a {path}: "
+                "use the config the checkpoint was trained with"
+            )
 
 
 def no_space(path: str | os.PathLike) -> OSError:

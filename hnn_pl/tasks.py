@@ -1,10 +1,9 @@
-"""The task registry: each experiment of the paper named once.
+"""The task registry: each experiment of the paper named once, as plain data.
 
-A :class:`Task` holds everything that is *about the experiment* rather than about a
-model or a data set: its configs (per recipe and model), the published numbers, its
-reference and clean protocols and its kind (``"state"`` or ``"pixel"``, which picks
-the evaluation). ``reproduce``, ``evaluate``, the rollout callback (a config names a
-task's protocol) and the README read it from here.
+A :class:`Task` holds what is *about the experiment* rather than about a model or a
+data set: its configs (per recipe and model), the published numbers and its protocols
+(:class:`Spec`: built by :func:`hnn_pl.evaluation.task_protocol`). Imports nothing of
+the package.
 """
 
 from __future__ import annotations
@@ -13,10 +12,27 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from hnn_pl.protocols import Protocol, ReferenceProtocol
-
 MODELS = ("baseline", "hnn", "dissipative")
 RECIPES = ("paper", "fast", "traj")
+#: the protocols a task may name
+PROTOCOLS = ("clean", "reference", "independent")
+
+
+class Spec(NamedTuple):
+    """A protocol as data: ``kind`` ``"rollout"`` (:class:`hnn_pl.evaluation.Protocol`)
+    or ``"reference"`` (:class:`hnn_pl.evaluation.ReferenceProtocol`) and the fields that
+    differ from the class's defaults."""
+
+    kind: str
+    fields: dict[str, Any]
+
+
+def rollout(**fields: Any) -> Spec:
+    return Spec("rollout", fields)
+
+
+def reference(**fields: Any) -> Spec:
+    return Spec("reference", fields)
 
 
 class Published(NamedTuple):
@@ -46,11 +62,10 @@ class Task:
         name: the registry key, also the stem of its configs.
         title: a human name.
         kind: ``"state"`` (models of ``dy/dt`` on states) or ``"pixel"`` (an
-            autoencoder with latent dynamics).
+            autoencoder with latent dynamics; its latent field has no true field).
         published: model name → :class:`Published`.
-        reference: the published energy-MSE procedure (a :class:`ReferenceProtocol`
-            for state tasks; a :class:`Protocol` for the pixel task, whose
-            reference is a latent rollout of the first held-out trajectory).
+        reference: the published energy-MSE procedure (scipy's for state tasks; a
+            latent rollout of one trajectory for the pixel task).
         clean: the protocol every model is scored with the same way, and the
             rollout callback's default.
         cost: relative training time (``reproduce`` starts the longest first).
@@ -58,26 +73,27 @@ class Task:
         models: the models with bundled configs (``reproduce`` trains these).
         paper_motion: the paper recipe's HNN medians on the clean protocol
             (:class:`PaperMotion`), the state target of
-            :class:`~hnn_pl.callbacks.TimeToAccuracy`; ``None``: no state target.
+            :class:`~hnn_pl.commands.tta.TimeToAccuracy`; ``None``: no state target.
         traj_models: the models with a trajectory-objective config (recipe
             ``"traj"``: ``TASK_traj.yaml``, learning from the observed states only).
-        independent: the true-energy evaluation (``ReferenceProtocol(atol=1e-12)``:
-            the published procedure without its quirks) where it applies, or ``None``.
+        independent: the true-energy evaluation (the published procedure without its
+            quirks, ``atol=1e-12``) where it applies, or ``None``.
+        default: whether ``reproduce`` runs it without ``--tasks``.
     """
 
     name: str
     title: str
     kind: str
     published: dict[str, Published]
-    reference: ReferenceProtocol | Protocol
-    clean: Protocol
+    reference: Spec
+    clean: Spec
     cost: float = 1.0
-    notes: dict[str, str] = field(default_factory=dict)
     tta_every: dict[str, int] = field(default_factory=lambda: {"paper": 50, "fast": 10, "traj": 50})
     models: tuple[str, ...] = ("baseline", "hnn")
     paper_motion: PaperMotion | None = None
     traj_models: tuple[str, ...] = ()
-    independent: ReferenceProtocol | None = None
+    independent: Spec | None = None
+    default: bool = True
 
     def models_for(self, recipe: str) -> tuple[str, ...]:
         """The models with a bundled config of ``recipe``."""
@@ -99,18 +115,6 @@ class Task:
         parts = [self.name, "" if recipe == "paper" else recipe, model * (model != "hnn")]
         return "_".join(p for p in parts if p) + ".yaml"
 
-    def protocol(self, name: str = "clean") -> Protocol | ReferenceProtocol:
-        """``"clean"`` or ``"reference"``."""
-        if name not in ("clean", "reference"):
-            raise ValueError(f"protocol must be 'clean' or 'reference', got {name!r}")
-        return getattr(self, name)
-
-    def evaluate(self, model: Any, dm: Any) -> dict[str, Any]:
-        """Losses and both protocols (see :mod:`hnn_pl.evaluate`)."""
-        from hnn_pl import evaluate
-
-        return evaluate.EVALUATORS[self.kind](self, model, dm)
-
 
 #: where the ``paper_motion`` medians come from (issue 21)
 _PAPER = (
@@ -128,14 +132,14 @@ TASKS: dict[str, Task] = {
                 "baseline": Published(3.7134e-02, 3.6656e-02, 1.7077e-01, 2.06e-02),
                 "hnn": Published(3.6933e-02, 3.5928e-02, 3.8416e-04, 6.53e-05),
             },
-            ReferenceProtocol(time_stretch=1.09, compound_stretch=True),
-            Protocol(),
+            reference(time_stretch=1.09, compound_stretch=True),
+            rollout(),
             cost=1.0,
             paper_motion=PaperMotion(
                 8.842e-02, math.nan, _PAPER + "; field error not yet measured"
             ),
             traj_models=("baseline", "hnn"),
-            independent=ReferenceProtocol(atol=1e-12),
+            independent=reference(atol=1e-12),
         ),
         Task(
             "pendulum",
@@ -145,14 +149,14 @@ TASKS: dict[str, Task] = {
                 "baseline": Published(3.2606e-02, 3.5273e-02, 4.1519e-02, 9.62e-03),
                 "hnn": Published(3.2787e-02, 3.5586e-02, 2.4852e-02, 5.42e-03),
             },
-            ReferenceProtocol(energy="q2p2"),
-            Protocol(),
+            reference(energy="q2p2"),
+            rollout(),
             cost=1.2,
             paper_motion=PaperMotion(
                 1.001e-01, 1.568e-02, _PAPER + "; field error the median of seeds 0-1"
             ),
             traj_models=("baseline", "hnn"),
-            independent=ReferenceProtocol(atol=1e-12),
+            independent=reference(atol=1e-12),
         ),
         Task(
             "real_pendulum",
@@ -162,19 +166,11 @@ TASKS: dict[str, Task] = {
                 "baseline": Published(2.7455e-03, 2.1864e-03, 3.8564e-01, 6.92e-02),
                 "hnn": Published(9.2376e-03, 5.9584e-03, 1.4477e-02, 4.65e-03),
             },
-            ReferenceProtocol(starts="test", n_starts=1, rtol=1e-3, n_groups=1),
-            Protocol(t_end=None, n_points=None, n_groups=1),
+            reference(starts="test", n_starts=1, rtol=1e-3, n_groups=1),
+            rollout(t_end=None, n_points=None, n_groups=1),
             cost=0.8,
             models=("baseline", "hnn", "dissipative"),
             traj_models=("baseline", "hnn", "dissipative"),
-            notes={
-                "results": "dissipative: the dissipative HNN (`real_pendulum_dissipative.yaml`, "
-                "no published number). On the paper's forward differences it learns the "
-                "decay those differences add (energy slope ≈ −0.045 per s against the "
-                "recording's −0.011, as the baseline does); on central differences it "
-                "follows the recording (−0.011) and its energy MSE falls below the HNN's: "
-                "docs/friction.md.",
-            },
             paper_motion=PaperMotion(
                 8.259e-03, math.nan, _PAPER + "; field error not yet measured"
             ),
@@ -187,8 +183,8 @@ TASKS: dict[str, Task] = {
                 "baseline": Published(3.2682e-05, 2.9575e-05, 6.3276e-02, 3.36e-02),
                 "hnn": Published(2.9959e-06, 2.8218e-06, 3.8751e-05, 5.04e-06),
             },
-            ReferenceProtocol(starts="system", t_end=25.0, n_points=500, rtol=1e-9),
-            Protocol(t_end=20.0, max_starts=100),
+            reference(starts="system", t_end=25.0, n_points=500, rtol=1e-9),
+            rollout(t_end=20.0, max_starts=100),
             cost=4.0,
             tta_every={"paper": 250, "fast": 25, "traj": 100},
             paper_motion=PaperMotion(
@@ -204,8 +200,8 @@ TASKS: dict[str, Task] = {
                 "baseline": Published(9.5573e-02, 3.8000e-01, 1.0906e02, 7.74e01),
                 "hnn": Published(8.0346e-02, 4.8809e-01, 4.1926e-02, 3.39e-02),
             },
-            ReferenceProtocol(starts="system", t_end=3.0, n_points=500, rtol=1e-9),
-            Protocol(t_end=5.0, max_starts=100),
+            reference(starts="system", t_end=3.0, n_points=500, rtol=1e-9),
+            rollout(t_end=5.0, max_starts=100),
             cost=5.0,
             tta_every={"paper": 250, "fast": 25},
             paper_motion=PaperMotion(
@@ -220,7 +216,7 @@ TASKS: dict[str, Task] = {
                 "baseline": Published(1.7731e-04, 1.7306e-04, 9.2748e-03, 1.14e-03),
                 "hnn": Published(1.8683e-04, 1.8451e-04, 1.5315e-04, 8.42e-06),
             },
-            Protocol(
+            rollout(
                 t_end=None,
                 n_points=200,
                 n_groups=1,
@@ -230,26 +226,16 @@ TASKS: dict[str, Task] = {
                 reencode=True,
                 probe_encoder="hnn",
             ),
-            Protocol(t_end=None, n_points=200),
+            rollout(t_end=None, n_points=200),
             cost=4.5,
             tta_every={"paper": 500, "fast": 250},
-            notes={
-                "reference": "the reference's evaluation (analyze-pixels, 2019-05-20): one "
-                "trajectory from θ₀ = 0.2934, θ̇₀ = 0.7326, its first frame pair encoded, "
-                "the latent integrated over [0, 0.98·200] frames at 200 points, decoded, "
-                "re-encoded and read by a linear probe fitted on the training set through "
-                "the HNN's encoder (for the baseline too: `reproduce` pairs each baseline "
-                "with the HNN of its seed; time to accuracy uses each model's own), "
-                "H = 1.9(1 − cos q) + p²",
-                "clean": "all held-out 200-frame trajectories, each model its own encoder "
-                "and probe, H = 1.875(1 − cos q) + p²",
-            },
+            default=False,
         ),
     )
 }
 
 #: what ``reproduce`` runs without ``--tasks`` (the pixel task adds ~5 min per run)
-DEFAULT_TASKS = [name for name, t in TASKS.items() if t.kind == "state"]
+DEFAULT_TASKS = [name for name, t in TASKS.items() if t.default]
 #: the tasks with trajectory-objective configs (``reproduce --recipe traj``)
 TRAJ_TASKS = [name for name, t in TASKS.items() if t.traj_models]
 

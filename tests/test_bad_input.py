@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from hnn_pl import reproduce
-from hnn_pl.__main__ import main
+from hnn_pl.commands import reproduce
+from hnn_pl.commands.main import main
 
 
 @pytest.fixture(autouse=True)

@@ -22,9 +22,9 @@ def test_the_bump_moves_h_by_delta_and_the_rollout_keeps_it(fraction):
         h0 = copy.deepcopy(model.field).double().hamiltonian(y0.double())
     delta = fraction * float(h0.max() - h0.min())
     z1, out = energy_bump(model, y0, delta, torch.linspace(0, 5, 51, dtype=torch.float64))
-    torch.testing.assert_close(out.h[0], h0 + delta, rtol=0, atol=1e-7)
-    assert (out.h - out.h[:1]).abs().max() < 1e-7
-    assert torch.equal(out.y[0], z1) and (z1 - y0.double()).abs().max() > 0
+    torch.testing.assert_close(out.h_pred[0], h0 + delta, rtol=0, atol=1e-7)
+    assert (out.h_pred - out.h_pred[:1]).abs().max() < 1e-7
+    assert torch.equal(out.y_pred[0], z1) and (z1 - y0.double()).abs().max() > 0
 
 
 def test_a_pixel_model_is_bumped_in_its_latent_space_and_decoded():
@@ -34,8 +34,8 @@ def test_a_pixel_model_is_bumped_in_its_latent_space_and_decoded():
     with torch.no_grad():
         h0 = copy.deepcopy(model.field).double().hamiltonian(model.encode(x0).double())
     _, out = energy_bump(model, x0, 0.01, torch.linspace(0, 1, 11, dtype=torch.float64))
-    torch.testing.assert_close(out.h[0], h0 + 0.01, rtol=0, atol=1e-7)
-    assert out.frames.shape == (11, 3, 1568) and torch.isfinite(out.frames).all()
+    torch.testing.assert_close(out.h_pred[0], h0 + 0.01, rtol=0, atol=1e-7)
+    assert out.x_pred.shape == (11, 3, 1568) and torch.isfinite(out.x_pred).all()
 
 
 def test_a_model_without_h_cannot_be_bumped():
@@ -51,7 +51,7 @@ def test_a_bump_past_the_range_of_h_says_so():
 
 
 def test_the_bump_command_writes_the_rollouts_and_a_figure(tmp_path, monkeypatch):
-    from hnn_pl.__main__ import main
+    from hnn_pl.commands.main import main
 
     monkeypatch.chdir(tmp_path)
     fit = [

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from hnn_pl.cli import cli_main
-from hnn_pl.config_paths import CONFIG_DIR, bundled_configs, resolve_config
+from hnn_pl.commands.cli import cli_main
+from hnn_pl.commands.config_paths import CONFIG_DIR, bundled_configs, resolve_config
 
 CONFIGS = bundled_configs()
 
@@ -71,7 +71,7 @@ def test_top_level_help_lists_commands_and_configs():
     assert out.startswith("usage: python -m hnn_pl <command>")
     assert "fit" in out and "spring.yaml" in out
     # instant: neither Lightning nor torch is imported for it
-    code = "import sys; from hnn_pl.__main__ import main; main(['--help']); "
+    code = "import sys; from hnn_pl.commands.main import main; main(['--help']); "
     code += "assert not {'torch', 'lightning'} & set(sys.modules), 'heavy imports'"
     subprocess.run([sys.executable, "-c", code], capture_output=True, check=True)
 
@@ -209,7 +209,7 @@ def test_checkpoint_round_trip_rolls_out_the_same(tmp_path):
 
 @pytest.mark.parametrize("command", ["reproduce", "bump", "stress"])
 def test_subcommand_help_names_the_program(command, capsys, monkeypatch):
-    from hnn_pl.__main__ import main
+    from hnn_pl.commands.main import main
 
     monkeypatch.setattr(sys, "argv", ["/venv/bin/hnn-pl", command, "--help"])
     with pytest.raises(SystemExit):
@@ -218,7 +218,7 @@ def test_subcommand_help_names_the_program(command, capsys, monkeypatch):
 
 
 def test_top_level_help_says_what_predict_writes(capsys, monkeypatch):
-    from hnn_pl.__main__ import main
+    from hnn_pl.commands.main import main
 
     monkeypatch.setattr(sys, "argv", ["/venv/bin/hnn-pl"])
     main(["--help"])

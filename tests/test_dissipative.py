@@ -10,14 +10,14 @@ import torch
 from scipy.integrate import solve_ivp
 from torch import nn
 
-from hnn_pl import odeint, rollouts, tasks
-from hnn_pl.cli import cli_main
+from hnn_pl import evaluation, odeint
+from hnn_pl.commands.cli import cli_main
 from hnn_pl.data import RealPendulumData
 from hnn_pl.nets import MLP, DissipativeField
 from hnn_pl.systems.base import symplectic_gradient
 from hnn_pl.systems.real_pendulum import load_real_pendulum
 
-CLEAN = tasks.get("real_pendulum").clean
+CLEAN = evaluation.task_protocol("real_pendulum", "clean")
 
 
 class Quadratic(nn.Module):
@@ -83,7 +83,7 @@ def test_energy_decays_for_the_dissipative_hnn_and_not_for_the_hnn(tmp_path):
     out = {}
     for name in ("real_pendulum_fast_dissipative.yaml", "real_pendulum_fast.yaml"):
         cli = _fit(name, tmp_path)
-        metrics, r = rollouts.evaluate(cli.model, cli.datamodule, CLEAN)
+        metrics, r = evaluation.evaluate(cli.model, cli.datamodule, CLEAN)
         out[name] = metrics, r
     (m_d, r_d), (m_h, r_h) = out.values()
     assert m_d["true_energy_drift_slope"] < -0.005
@@ -103,7 +103,7 @@ def test_central_differences_carry_the_measured_decay(tmp_path):
     torch.testing.assert_close(dm.x_test, y[445:555])
     torch.testing.assert_close(dm.dx_test[0], (y[446] - y[444]) / (t[446] - t[444]))
     cli = _fit("real_pendulum_fast_dissipative.yaml", tmp_path, "--data.differences=central")
-    metrics, _ = rollouts.evaluate(cli.model, cli.datamodule, CLEAN)
+    metrics, _ = evaluation.evaluate(cli.model, cli.datamodule, CLEAN)
     ratio = metrics["energy_drift_slope"] / metrics["true_energy_drift_slope"]
     assert 0.4 < ratio < 2.5, metrics
     assert math.isfinite(metrics["energy_mse"])

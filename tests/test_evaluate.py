@@ -8,17 +8,21 @@ import pytest
 import torch
 from torch import nn
 
-from hnn_pl import tasks
+from hnn_pl import evaluation
 from hnn_pl.data import RealPendulumData, SimulatedData
-from hnn_pl.evaluate import (
-    ReferenceProtocol,
-    _box_starts,
-    _scipy_rollout,
-    evaluate_protocol,
-    evaluate_reference,
-    grouped_mean,
-)
+from hnn_pl.evaluation import ReferenceProtocol, grouped_mean
+from hnn_pl.evaluation.reference import _box_starts, _scipy_rollout
 from hnn_pl.systems import MassSpring, Pendulum
+
+
+def evaluate_protocol(model, dm, protocol) -> dict:
+    """The protocol's metrics with how many trajectories and how long (as reports give)."""
+    metrics, r = evaluation.evaluate(model, dm, protocol)
+    return {**metrics, **evaluation.report(r)}
+
+
+def evaluate_reference(model, dm, task, protocol=None) -> dict:
+    return evaluate_protocol(model, dm, protocol or evaluation.task_protocol(task, "reference"))
 
 
 class TrueField(nn.Module):
@@ -61,7 +65,7 @@ def test_spring_time_stretch_compounds_per_trial():
     """Trial k (1…15) of the spring is read at 1.09**(k+1) · t: the reference's in-place
     bug, whose last horizon is t ≈ 79 (SPEC)."""
     system = MassSpring()
-    p = tasks.get("spring").reference
+    p = evaluation.task_protocol("spring", "reference")
     y0 = _box_starts(p, 2, seed=0)
     t = torch.linspace(0, 20, 100, dtype=torch.float64)
     stretch = p.time_stretch ** torch.arange(2, 17, dtype=torch.float64)
@@ -70,7 +74,7 @@ def test_spring_time_stretch_compounds_per_trial():
     for k in (0, 14):
         exact = system.exact_solution(stretch[k] * t, y0[k : k + 1])[:, 0]
         torch.testing.assert_close(y[:, k], exact, rtol=1e-6, atol=1e-7)
-    assert evaluate_reference.__module__ == "hnn_pl.evaluate"
+    assert evaluation.task_protocol("spring", "reference").compound_stretch
     assert 79 < 20 * float(stretch[-1]) < 80
 
 
@@ -84,7 +88,7 @@ def test_box_starts_cover_both_signs_of_the_range():
 def test_pendulum_reference_energy_is_q2_plus_p2(tmp_path):
     dm = SimulatedData(Pendulum(), n_points=45, cache_dir=str(tmp_path))
     dm.setup()
-    p = tasks.get("pendulum").reference
+    p = evaluation.task_protocol("pendulum", "reference")
     assert p.energy == "q2p2" and p.time_stretch == 1.0
     default_energy = evaluate_reference(
         TrueField(dm.system, 0.05), dm, "pendulum", ReferenceProtocol(energy="system")
@@ -94,8 +98,12 @@ def test_pendulum_reference_energy_is_q2_plus_p2(tmp_path):
 
 
 def test_clean_protocol_scores_the_true_field_near_zero(spring_dm):
-    good = evaluate_protocol(TrueField(spring_dm.system), spring_dm, tasks.get("spring").clean)
-    bad = evaluate_protocol(TrueField(spring_dm.system, 0.05), spring_dm, tasks.get("spring").clean)
+    good = evaluate_protocol(
+        TrueField(spring_dm.system), spring_dm, evaluation.task_protocol("spring", "clean")
+    )
+    bad = evaluate_protocol(
+        TrueField(spring_dm.system, 0.05), spring_dm, evaluation.task_protocol("spring", "clean")
+    )
     assert good["energy_mse"] < 1e-14 and good["state_mse"] < 1e-12
     assert bad["energy_mse"] > 1e-4
     assert good["n_trajectories"] == 25 and good["t_end"] == 20.0
@@ -104,7 +112,7 @@ def test_clean_protocol_scores_the_true_field_near_zero(spring_dm):
 def test_field_error_is_zero_for_the_true_field_and_the_damping_share_otherwise(spring_dm):
     """H = q² + p²: f = (2p, −2q); damping c on p adds (0, −c·p), so over the true
     states ‖f_θ − f‖² / ‖f‖² = c² Σp² / Σ 4(q² + p²)."""
-    clean = tasks.get("spring").clean
+    clean = evaluation.task_protocol("spring", "clean")
     good = evaluate_protocol(TrueField(spring_dm.system), spring_dm, clean)
     bad = evaluate_protocol(TrueField(spring_dm.system, 0.05), spring_dm, clean)
     _, y = spring_dm.rollout_target(clean.t_end, clean.n_points)
@@ -122,7 +130,9 @@ def test_real_pendulum_field_error_reads_the_recordings_central_differences(tmp_
     gaps = t[1:] - t[:-1]
     i = int(torch.nonzero((gaps[1:] - gaps[:-1]).abs() < 1e-9)[5]) + 1
     torch.testing.assert_close(f[i], (y[i + 1] - y[i - 1]) / float(t[i + 1] - t[i - 1]))
-    clean = evaluate_protocol(TrueField(dm.system), dm, tasks.get("real_pendulum").clean)
+    clean = evaluate_protocol(
+        TrueField(dm.system), dm, evaluation.task_protocol("real_pendulum", "clean")
+    )
     assert 0 < clean["field_error"] < math.inf
 
 
@@ -130,7 +140,9 @@ def test_real_pendulum_protocols_use_the_measured_segment(tmp_path):
     dm = RealPendulumData(cache_dir=str(tmp_path), dtype="float64")
     dm.setup()
     ref = evaluate_reference(TrueField(dm.system), dm, "real_pendulum")
-    clean = evaluate_protocol(TrueField(dm.system), dm, tasks.get("real_pendulum").clean)
+    clean = evaluate_protocol(
+        TrueField(dm.system), dm, evaluation.task_protocol("real_pendulum", "clean")
+    )
     assert ref["n_trajectories"] == clean["n_trajectories"] == 1
     assert ref["t_end"] == pytest.approx(99.1667, abs=1e-3)
     # the ideal pendulum is not the measured one (friction): a finite, non-zero error

@@ -264,7 +264,7 @@ def test_every_cli_failure_is_one_line_and_leaves_nothing(case, cli_runs):
 def test_checkpoint_hyperparameters_restore_only_plain_options():
     from types import SimpleNamespace
 
-    from hnn_pl.cli_errors import checkpoint_init_args
+    from hnn_pl.commands.cli_errors import checkpoint_init_args
 
     ckpt = {
         "hyper_parameters": {
@@ -537,7 +537,7 @@ def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
 
 
 def test_stability_md_lists_every_fault_with_a_test_that_exists():
-    from hnn_pl.stress import FAULTS, faults_section
+    from hnn_pl.commands.stress import FAULTS, faults_section
 
     assert faults_section() in (ROOT / "STABILITY.md").read_text()
     sources = {p.name: p.read_text() for p in (ROOT / "tests").glob("test_*.py")}

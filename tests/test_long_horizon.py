@@ -8,8 +8,8 @@ import math
 import pytest
 import torch
 
-from hnn_pl import rollouts, tasks
-from hnn_pl.cli import cli_main
+from hnn_pl import evaluation
+from hnn_pl.commands.cli import cli_main
 
 
 def _circle(t: torch.Tensor, omega: float) -> torch.Tensor:
@@ -22,11 +22,11 @@ def test_valid_time_is_the_first_crossing_of_the_normalised_error():
     t = torch.linspace(0, 20, 20001, dtype=torch.float64)
     y_true, y_pred = _circle(t, 1.0), _circle(t, 1.01)
     e = (y_true**2).sum(-1)
-    r = rollouts.Rollout(t, y_true, y_pred, e, e)
+    r = evaluation.Rollout(t, y_true, y_pred, e, e)
     expected = 2 * math.asin(0.0125) / 0.01
-    assert float(rollouts.valid_time(r)[0]) == pytest.approx(expected, abs=2e-3)
-    never = rollouts.Rollout(t, y_true, y_true.clone(), e, e)
-    assert float(rollouts.valid_time(never)[0]) == 20.0
+    assert float(evaluation.metrics.valid_time(r)[0]) == pytest.approx(expected, abs=2e-3)
+    never = evaluation.Rollout(t, y_true, y_true.clone(), e, e)
+    assert float(evaluation.metrics.valid_time(never)[0]) == 20.0
 
 
 def test_energy_drift_slope_of_a_linear_drift():
@@ -34,8 +34,8 @@ def test_energy_drift_slope_of_a_linear_drift():
     e_true = torch.full((101, 3), 2.0, dtype=torch.float64)
     e_pred = e_true * (1 + 1e-3 * t[:, None])
     y = torch.zeros(101, 3, 2, dtype=torch.float64)
-    r = rollouts.Rollout(t, y, y, e_true, e_pred)
-    assert float(rollouts.energy_drift_slope(r)) == pytest.approx(1e-3, rel=1e-9)
+    r = evaluation.Rollout(t, y, y, e_true, e_pred)
+    assert float(evaluation.metrics.energy_drift_slope(r)) == pytest.approx(1e-3, rel=1e-9)
 
 
 def test_the_floors_lie_below_a_trained_models_error():
@@ -48,9 +48,9 @@ def test_the_floors_lie_below_a_trained_models_error():
     ]
     cli = cli_main(args, run=False, save_config=False)
     cli.trainer.fit(cli.model, cli.datamodule)
-    clean = tasks.get("spring").clean
+    clean = evaluation.task_protocol("spring", "clean")
     for protocol in (clean, clean.replace(method="rk4", step_size=0.1)):
-        m, _ = rollouts.evaluate(cli.model, cli.datamodule, protocol)
+        m, _ = evaluation.evaluate(cli.model, cli.datamodule, protocol)
         assert m["floor_chaos_energy_mse"] < m["energy_mse"] / 10, m
         assert m["floor_integrator_energy_mse"] < m["energy_mse"], m
         assert 0 < m["valid_time"] <= 20.0 and math.isfinite(m["energy_drift_slope"])

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 import hnn_pl
-from hnn_pl.config_paths import bundled_configs
+from hnn_pl.commands.config_paths import bundled_configs
 
 REPO = Path(__file__).resolve().parent.parent
 #: what the build needs: pyproject.toml names README.md as the long description
@@ -88,7 +88,11 @@ def test_wheel_ships_configs_and_runs_from_anywhere(tmp_path):
     env.update(HNN_PL_CACHE=str(tmp_path / "cache"), OMP_NUM_THREADS="1", PYTHONNOUSERSITE="1")
 
     where = _run(
-        [python, "-c", "import hnn_pl.config_paths as c; print(c.__file__); print(c.CONFIG_DIR)"],
+        [
+            python,
+            "-c",
+            "import hnn_pl.commands.config_paths as c; print(c.__file__); print(c.CONFIG_DIR)",
+        ],
         run_dir,
         env,
     ).split()

@@ -8,13 +8,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from hnn_pl import plotting, rollouts
-from hnn_pl.cli import cli_main
+from hnn_pl import evaluation, plotting
+from hnn_pl.commands.cli import cli_main
 from hnn_pl.data.pixel import PixelPendulumData
+from hnn_pl.evaluation import Rollout, apply_probe, fit_probe
 from hnn_pl.models import AutoencoderBaseline, AutoencoderHNN
 from hnn_pl.render import render_pendulum
-from hnn_pl.rollouts import Rollout, apply_probe, fit_probe
-from hnn_pl.tasks import TASKS
 
 #: a tiny data set: 6 trajectories × 8 frames (5 samples each), 2 held out, rollouts of 12
 TINY = dict(n_trajectories=6, n_frames=8, rollout_frames=12, test_fraction=1 / 3)
@@ -178,7 +177,7 @@ def test_trajectory_truth_is_a_fresh_trajectory_without_its_first_frame(tmp_path
 
 
 def test_pixel_protocol_fields_are_checked():
-    ref = TASKS["pixel"].reference
+    ref = evaluation.task_protocol("pixel", "reference")
     assert ref.start == (0.2934, 0.7326) and ref.model_t_end == pytest.approx(196.0)
     assert ref.energy_coef == 1.9 and ref.reencode and ref.probe_encoder == "hnn"
     assert ref.replace(start=[0.1, 0.2]).start == (0.1, 0.2)
@@ -304,13 +303,13 @@ def test_short_fit_logs_losses_rollout_metrics_and_images(fitted):
 
 def test_callback_run_returns_consistent_metrics_and_rollout(fitted):
     config, _, cli = fitted
-    protocol = TASKS["pixel"].clean.replace(n_points=15, method="rk4")
+    protocol = evaluation.task_protocol("pixel", "clean").replace(n_points=15, method="rk4")
     cli.model.train()
-    metrics, r = rollouts.evaluate(cli.model, cli.datamodule, protocol)
+    metrics, r = evaluation.evaluate(cli.model, cli.datamodule, protocol)
     assert cli.model.training  # evaluated in eval mode, training mode restored
     assert (
         isinstance(r, Rollout)
-        and r.is_pixel
+        and r.has_frames
         and all(isinstance(v, float) for v in metrics.values())
     )
     assert r.z_pred.shape == (15, 2, 2) and r.x_pred.shape == r.x_true.shape == (15, 2, 1568)
@@ -344,25 +343,27 @@ def test_reference_protocol_reads_decoded_frames_through_the_probe_model(fitted)
     _, _, cli = fitted
     model, dm = cli.model, cli.datamodule
     n = 15
-    protocol = TASKS["pixel"].reference.replace(n_points=n, model_t_end=0.98 * n)
-    own, r = rollouts.evaluate(model, dm, protocol)
+    protocol = evaluation.task_protocol("pixel", "reference").replace(
+        n_points=n, model_t_end=0.98 * n
+    )
+    own, r = evaluation.evaluate(model, dm, protocol)
     assert r.y_true.shape == (n, 1, 2) and r.x_pred.shape == (n, 1, 1568)
     _, y_true, x_true = dm.trajectory_truth(*protocol.start, n)
     torch.testing.assert_close(r.x_true, x_true)
     t_model = torch.linspace(0, 0.98 * n, n, dtype=torch.float64) * model.frame_dt
-    z = rollouts.rollout(model, x_true[0], t_model, rtol=1e-9, atol=1e-9).y
+    z = evaluation.rollout(model, x_true[0], t_model, rtol=1e-9, atol=1e-9).y_pred
     torch.testing.assert_close(r.z_pred, z, rtol=0, atol=1e-7)
     with torch.no_grad():
         z_read = model.encode(r.x_pred)
     torch.testing.assert_close(r.y_pred, apply_probe(r.probe, z_read))
     e = 1.9 * (1 - torch.cos(r.y_pred[..., 0])) + r.y_pred[..., 1] ** 2
     torch.testing.assert_close(r.e_pred, e)
-    same = rollouts.evaluate(model, dm, protocol, probe_model=model)[0]
+    same = evaluation.evaluate(model, dm, protocol, probe_model=model)[0]
     assert same == pytest.approx(own, rel=1e-9)
     # another model's encoder: the probe is fitted on its encodings and reads through it
     torch.manual_seed(1)
     other = AutoencoderHNN(input_dim=1568)
-    metrics, r2 = rollouts.evaluate(model, dm, protocol, probe_model=other)
+    metrics, r2 = evaluation.evaluate(model, dm, protocol, probe_model=other)
     x_train, qp_train = dm.probe_data()
     with torch.no_grad():
         probe, _ = fit_probe(other.encode(x_train), qp_train)
@@ -371,7 +372,9 @@ def test_reference_protocol_reads_decoded_frames_through_the_probe_model(fitted)
     torch.testing.assert_close(r2.z_pred, r.z_pred)  # the model's own latent rollout
     assert metrics["energy_mse"] != own["energy_mse"]
     # the "own" setting ignores a probe model
-    ignored = rollouts.evaluate(model, dm, protocol.replace(probe_encoder="own"), other)[0]
+    ignored = evaluation.evaluate(
+        model, dm, protocol.replace(probe_encoder="own"), probe_model=other
+    )[0]
     assert ignored == pytest.approx(own, rel=1e-9)
 
 

@@ -8,7 +8,8 @@ import lightning as L
 import pytest
 import torch
 
-from hnn_pl.callbacks import TimeToAccuracy
+from hnn_pl import evaluation
+from hnn_pl.commands.tta import TimeToAccuracy
 from hnn_pl.data import SimulatedData
 from hnn_pl.models import HNN, Baseline
 from hnn_pl.systems import MassSpring
@@ -167,16 +168,13 @@ def test_time_to_accuracy_refuses_a_field_that_does_not_move(tmp_path):
 
 def test_time_to_accuracy_scores_like_the_published_procedure(tmp_path):
     """The callback's batched torch rollout agrees with scipy's RK45 (≈1e-6 accurate)."""
-    from hnn_pl.evaluate import reference_case, score_reference
-    from hnn_pl.tasks import TASKS
-
     dm = _dm(tmp_path)
     dm.setup()
     model = _model()
     _fit(model, dm, 30)
-    case = reference_case(dm, TASKS["spring"].reference)
-    torch_mse = score_reference(model, case, "torch")["energy_mse"]
-    scipy_mse = score_reference(model, case, "scipy")["energy_mse"]
+    case = evaluation.reference_case(dm, evaluation.task_protocol("spring", "reference"))
+    torch_mse = evaluation.score(case.run(model, "torch"))["energy_mse"]
+    scipy_mse = evaluation.score(case.run(model, "scipy"))["energy_mse"]
     assert torch_mse == pytest.approx(scipy_mse, rel=1e-3)
 
 

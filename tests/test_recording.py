@@ -10,10 +10,10 @@ import torch
 from test_bad_input import FIT, _fails
 from torch import nn
 
-from hnn_pl import rollouts
-from hnn_pl.cli import cli_main
+from hnn_pl import evaluation
+from hnn_pl.commands.cli import cli_main
 from hnn_pl.data import RealPendulumData, RecordingData, load_recording
-from hnn_pl.protocols import Protocol
+from hnn_pl.evaluation import Protocol
 from hnn_pl.systems import MassSpring
 from hnn_pl.systems.real_pendulum import load_real_pendulum
 
@@ -182,12 +182,12 @@ def test_split_by_trajectory_and_rollouts_on_the_union_of_times(tmp_path):
     t, y = dm.rollout_target(None)
     assert y.shape == (len(t), 2, 2) and t[0] == 0
     assert int((~y.isnan().any(-1)).sum()) == (b0 - a0) + (b2 - a2)
-    metrics, r = rollouts.evaluate(TrueField(MassSpring()), dm, PROTOCOL)
+    metrics, r = evaluation.evaluate(TrueField(MassSpring()), dm, PROTOCOL)
     assert metrics["state_mse"] < 1e-14 and metrics["energy_mse"] < 1e-14
     assert abs(metrics["true_energy_drift_slope"]) < 1e-12 and metrics["diverged_rows"] == 0
     still = RecordingData(str(path), MassSpring(), test_trajectories=[7, 2], dtype="float64")
     still.setup()
-    m_still, _ = rollouts.evaluate(Still(), still, PROTOCOL)
+    m_still, _ = evaluation.evaluate(Still(), still, PROTOCOL)
     assert m_still["state_mse"] > 0.1 and m_still["motion_error"] > 0.5
     with pytest.raises(ValueError, match="t_end: null"):
         dm.rollout_target(20.0)
@@ -207,7 +207,7 @@ def test_one_recording_holds_out_a_time_segment_and_needs_no_energy(tmp_path):
     assert torch.equal(dm.obs_y_test, rec.y[10:20]) and torch.equal(dm.test_t, rec.t[10:20])
     assert torch.bincount(dm.obs_traj_train).tolist() == [10, 20]  # before and after
     assert dm.windows_train.shape == (7 + 17, 4)
-    metrics, _ = rollouts.evaluate(TrueField(MassSpring()), dm, PROTOCOL)
+    metrics, _ = evaluation.evaluate(TrueField(MassSpring()), dm, PROTOCOL)
     assert metrics["state_mse"] < 1e-14 and not any("energy" in k for k in metrics)
     last = RecordingData(str(path), test_fraction=0.25)
     last.setup()

@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from hnn_pl import reproduce
-from hnn_pl.cli_errors import CLIError
+from hnn_pl.commands import reproduce
+from hnn_pl.commands.cli_errors import CLIError
 
 
 def _run(tmp_path, monkeypatch, extra=()):

@@ -10,13 +10,13 @@ import torch
 import yaml
 
 import hnn_pl
-from hnn_pl import rollouts, tasks
-from hnn_pl.callbacks import FinalCheckpoint, RolloutCallback, task_protocol
-from hnn_pl.cli import cli_main
-from hnn_pl.config_paths import bundled_configs, resolve_config
+from hnn_pl import evaluation, tasks
+from hnn_pl.callbacks import FinalCheckpoint, RolloutCallback
+from hnn_pl.commands.cli import cli_main
+from hnn_pl.commands.config_paths import bundled_configs, resolve_config
 from hnn_pl.data import SimulatedData
+from hnn_pl.evaluation import Protocol, ReferenceProtocol
 from hnn_pl.models import HNN, Baseline
-from hnn_pl.protocols import Protocol, ReferenceProtocol
 from hnn_pl.systems import MassSpring
 
 PACKAGE = Path(hnn_pl.__file__).parent
@@ -30,9 +30,9 @@ def test_every_task_names_its_configs_and_published_numbers_once():
                 assert task.config(model, recipe) in configs
         for model in ("baseline", "hnn"):
             assert task.published[model].energy_mse > 0
-        assert isinstance(task.clean, Protocol)
+        assert isinstance(evaluation.task_protocol(task.name, "clean"), Protocol)
         want = Protocol if task.kind == "pixel" else ReferenceProtocol
-        assert isinstance(task.reference, want)
+        assert isinstance(evaluation.task_protocol(task.name, "reference"), want)
     assert tasks.get("spring").config("baseline", "fast") == "spring_fast_baseline.yaml"
     real = tasks.get("real_pendulum").config("dissipative", "fast")
     assert real == "real_pendulum_fast_dissipative.yaml"
@@ -75,8 +75,9 @@ def test_protocol_overrides_are_checked_when_the_callback_is_built():
         RolloutCallback("spring", overrides={"n_points": 0})
     with pytest.raises(ValueError, match="overrides"):
         RolloutCallback("spring", overrides={"horizon": 3})
-    with pytest.raises(ValueError, match="scipy"):
-        task_protocol("spring", "reference", None)
+    with pytest.raises(ValueError, match="no protocol 'exact'"):
+        RolloutCallback("spring", protocol="exact")
+    assert isinstance(RolloutCallback("spring", "reference").protocol, ReferenceProtocol)
 
 
 class _Exact(torch.nn.Module):
@@ -91,11 +92,11 @@ class _Exact(torch.nn.Module):
 def test_engine_scores_the_true_field_near_zero_and_a_model_above(tmp_path):
     dm = SimulatedData(MassSpring(), cache_dir=str(tmp_path), dtype="float64")
     dm.setup()
-    p = tasks.get("spring").clean.replace(n_points=50)
-    exact, r = rollouts.evaluate(_Exact(dm.system), dm, p)
+    p = evaluation.task_protocol("spring", "clean").replace(n_points=50)
+    exact, r = evaluation.evaluate(_Exact(dm.system), dm, p)
     assert exact["energy_mse"] < 1e-14 and r.y_pred.shape == (50, 25, 2)
     model = HNN(input_dim=2, hidden_dim=16)
-    learned, r = rollouts.evaluate(model, dm, p)
+    learned, r = evaluation.evaluate(model, dm, p)
     assert learned["energy_mse"] > 1e3 * exact["energy_mse"]
     assert r.h_pred.shape == (50, 25) and learned["conserved_drift"] < 1e-6
     assert model.training
@@ -106,12 +107,12 @@ def test_python_rollout_api_returns_states_energies_and_times():
     y0 = torch.tensor([[1.0, 0.0], [0.0, 0.5]], dtype=torch.float64)
     t = torch.linspace(0, 1, 11, dtype=torch.float64)
     out = hnn_pl.rollout(model, y0, t, method="rk4", energy=MassSpring().energy)
-    assert out.y.shape == (11, 2, 2) and out.energy.shape == (11, 2) and out.h is None
+    assert out.y_pred.shape == (11, 2, 2) and out.e_pred.shape == (11, 2) and out.h_pred is None
     direct = hnn_pl.odeint(model.field.vector_field, y0, t, method="rk4")
-    torch.testing.assert_close(out.y, direct, rtol=0, atol=0)
+    torch.testing.assert_close(out.y_pred, direct, rtol=0, atol=0)
     hnn = HNN(input_dim=2, hidden_dim=16)
     out = hnn_pl.rollout(hnn, y0.float(), t, method="rk4")
-    assert out.y.dtype == torch.float64 and out.h.shape == (11, 2)
+    assert out.y_pred.dtype == torch.float64 and out.h_pred.shape == (11, 2)
 
 
 def _common(tmp_path: Path) -> list[str]:
@@ -265,7 +266,7 @@ def test_predict_with_the_implicit_midpoint_rule(run):
     assert mid["metrics"]["diverged_rows"] == 0
     model = type(cli.model).load_from_checkpoint(ckpt)
     ref = hnn_pl.rollout(model, mid["y_true"][0], mid["t"], method="dopri5", rtol=1e-9, atol=1e-9)
-    torch.testing.assert_close(mid["y_pred"], ref.y, rtol=0, atol=1e-3)
+    torch.testing.assert_close(mid["y_pred"], ref.y_pred, rtol=0, atol=1e-3)
     if "h_pred" in mid:
         h = mid["h_pred"]
         assert (h - h[:1]).abs().max() / h.std() < 1e-3

@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from hnn_pl import evaluation
 from hnn_pl.integrate import Status, odeint
 from hnn_pl.systems.mass_spring import MassSpring
 from hnn_pl.systems.pendulum import Pendulum
@@ -251,16 +252,19 @@ class _CliffField(torch.nn.Module):
 
 
 def test_rollout_scores_the_finite_rows_and_counts_the_others():
-    from hnn_pl import rollouts
 
     y0 = torch.cat([CLEAN, CLIFF])
     t = torch.linspace(0, 3, 31, dtype=F64)
-    out = rollouts.rollout(_CliffField(), y0, t, "rk4", step_size=0.01)
-    assert out.status.tolist() == [0, 0, 0, Status.DIVERGED] and torch.isnan(out.y[-1, 3]).all()
+    out = evaluation.rollout(_CliffField(), y0, t, "rk4", step_size=0.01)
+    assert (
+        out.status.tolist() == [0, 0, 0, Status.DIVERGED] and torch.isnan(out.y_pred[-1, 3]).all()
+    )
     y_true = odeint(_cliff, CLEAN, t, "rk4", step_size=0.01)
     truth = torch.cat([y_true, torch.zeros(31, 1, 2, dtype=F64)], 1)
     energy = Pendulum().energy
-    r = rollouts.Rollout(t, truth, out.y, energy(truth), energy(out.y), status=out.status)
-    metrics = rollouts.score(r)
+    r = evaluation.Rollout(
+        t, truth, out.y_pred, energy(truth), energy(out.y_pred), status=out.status
+    )
+    metrics = evaluation.score(r)
     assert metrics["diverged_rows"] == 1 and metrics["energy_mse"] == 0.0
     assert metrics["state_mse"] == 0.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from hnn_pl import stress
+from hnn_pl.commands import stress
 from hnn_pl.systems import MassSpring, Pendulum
 
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from hnn_pl import HNN, Baseline, DissipativeHNN
+from hnn_pl import HNN, Baseline, DissipativeHNN, evaluation
 from hnn_pl.integrate import WINDOW_METHODS, odeint_windows
 from hnn_pl.models.base import DynamicsModel
 from hnn_pl.nets import DirectField
@@ -199,12 +199,10 @@ def test_states_only_spring_fit_learns_the_dynamics():
     independent evaluation; an untrained HNN scores ≈ 10). Measured here: 2.6e-3
     against 2.9e-3 — central differences are not hopeless at this noise with a short
     recipe, so the issue's ≥ 10× is not met (BENCHMARKS.md)."""
-    from hnn_pl import tasks
     from hnn_pl.data.differences import central_differences
-    from hnn_pl.evaluate import evaluate_reference
 
     torch.manual_seed(0)
-    protocol = tasks.get("spring").independent
+    protocol = evaluation.task_protocol("spring", "independent")
     dm = _spring(window=5, batch_size=128)
     traj = HNN(objective="trajectory", learned_states="sample", lr=3e-3, schedule="onecycle")
     trainer = _fit(traj, dm, 150)
@@ -215,6 +213,6 @@ def test_states_only_spring_fit_learns_the_dynamics():
     dm_c.dx_train = central_differences(dm_c.obs_y_train, dm_c.obs_t_train, dm_c.obs_traj_train)
     central = HNN(lr=3e-3, schedule="onecycle", inner_steps=10, weight_decay=1e-4)
     _fit(central, dm_c, 150)
-    e_traj = evaluate_reference(traj, dm, "spring", protocol)["energy_mse"]
-    e_central = evaluate_reference(central, dm_c, "spring", protocol)["energy_mse"]
+    e_traj = evaluation.evaluate(traj, dm, protocol)[0]["energy_mse"]
+    e_central = evaluation.evaluate(central, dm_c, protocol)[0]["energy_mse"]
     assert e_traj <= 5e-3 and e_traj <= e_central, (e_traj, e_central)

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from hnn_pl import rollouts, tasks
-from hnn_pl.cli import cli_main
+from hnn_pl import evaluation, tasks
+from hnn_pl.commands.cli import cli_main
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -48,6 +48,8 @@ def test_a_system_from_h_alone_trains_and_the_hnn_beats_its_baseline(double_well
         assert type(cli.datamodule.system) is double_well
         cli.trainer.fit(cli.model, cli.datamodule)
         assert "double_well.DoubleWell" in str(cli.datamodule.cache_params()["system"])
-        metrics, _ = rollouts.evaluate(cli.model, cli.datamodule, tasks.get("spring").clean)
+        metrics, _ = evaluation.evaluate(
+            cli.model, cli.datamodule, evaluation.task_protocol("spring", "clean")
+        )
         energy[name] = metrics["energy_mse"]
     assert energy["hnn"] < energy["baseline"] / 3, energy

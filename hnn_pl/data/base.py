@@ -376,7 +376,7 @@ class TrajectoryDataModule(L.LightningDataModule):
 
     def true_field(self, t: Tensor, y: Tensor) -> Tensor:
         """The true ``dy/dt`` at held-out states ``y (T, B, D)`` at times ``t (T,)``: the
-        system's field (the field error of :mod:`hnn_pl.rollouts` compares a model's
+        system's field (the field error of :mod:`hnn_pl.evaluation` compares a model's
         with it)."""
         if self.system is None:
             raise NotImplementedError(f"{type(self).__name__} defines no true field")

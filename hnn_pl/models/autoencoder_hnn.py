@@ -145,11 +145,11 @@ class AutoencoderDynamicsModel(RecipeModel):
         (``t = k·frame_dt``) and decode (see :func:`hnn_pl.rollout`): ``z (n_frames, B,
         latent_dim)`` in the integration dtype, ``x̂ (n_frames, B, input_dim)`` in the
         model's."""
-        from hnn_pl.rollouts import rollout
+        from hnn_pl.evaluation import rollout
 
         t = torch.arange(n_frames, dtype=torch.float64, device=x0.device) * self.frame_dt
         out = rollout(self, x0, t, method=method, dtype=dtype, **kwargs)
-        return out.y, out.frames
+        return out.z_pred, out.x_pred
 
     # ------------------------------------------------------------------ Lightning
 

@@ -132,9 +132,9 @@ class DynamicsModel(RecipeModel):
         """Integrate the learned field in the model's dtype: ``y0 (batch, 2k)``, ``t (T,)``
         -> ``(T, batch, 2k)``; ``kwargs`` go to :func:`hnn_pl.odeint`. For energies and
         ``H_θ`` as well, use :func:`hnn_pl.rollout`."""
-        from hnn_pl.rollouts import rollout
+        from hnn_pl.evaluation import rollout
 
-        return rollout(self, y0, t, method=method, dtype="model", **kwargs).y
+        return rollout(self, y0, t, method=method, dtype="model", **kwargs).y_pred
 
     # ------------------------------------------------------------ learned states
 

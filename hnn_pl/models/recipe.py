@@ -16,6 +16,8 @@ import lightning as L
 import torch
 from torch import Tensor
 
+from hnn_pl.safe_io import check_model_class, class_name
+
 OPTIMIZERS = ("adam", "adamw", "lbfgs")
 SCHEDULES = ("constant", "cosine", "onecycle")
 #: skipped non-finite steps (``on_nonfinite="skip"``) after which the fit stops anyway
@@ -100,17 +102,12 @@ class RecipeModel(L.LightningModule):
         )
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        checkpoint["hnn_pl_model_class"] = _class_path(self)
+        checkpoint["hnn_pl_model_class"] = class_name(type(self))
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Refuse a checkpoint of another model class (a Baseline's weights under an HNN
         config would otherwise be tested under the HNN's name)."""
-        saved = checkpoint.get("hnn_pl_model_class")
-        if saved is not None and saved != _class_path(self):
-            raise ValueError(
-                f"the checkpoint holds a {saved} but the config builds a {_class_path(self)}: "
-                "use the config the checkpoint was trained with"
-            )
+        check_model_class(checkpoint, type(self), "the checkpoint")
 
     def in_own_dtype(self, fn: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
         """``fn`` applied to ``x`` cast to the parameters' dtype, returned in ``x``'s: a
@@ -226,7 +223,3 @@ class RecipeModel(L.LightningModule):
             for name, value in parts.items():
                 if name != "loss":
                     self.log(f"train/{name}", value.detach())
-
-
-def _class_path(obj: Any) -> str:
-    return f"{type(obj).__module__}.{type(obj).__qualname__}"

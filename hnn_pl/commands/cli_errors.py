@@ -3,15 +3,15 @@
 - :func:`one_line`: jsonargparse's nested, multi-line parse errors (and its usage
   dump) become one line naming the option, with the closest valid names
   (``did you mean hidden_dim?``).
-- :func:`check_checkpoint`: a ``--ckpt_path`` is read as data (:func:`load_checkpoint`)
-  and the model class it names is compared *as a string* with the class the config
-  builds; nothing a checkpoint names is ever imported.
+- a ``--ckpt_path`` is read as data (:func:`hnn_pl.safe_io.load_checkpoint`) and the
+  model class it names is compared *as a string* with the class the config builds
+  (:func:`hnn_pl.safe_io.check_model_class`); nothing a checkpoint names is imported.
 - :func:`checkpoint_init_args`: the plain hyperparameters of a checkpoint that the
   config's class takes (what LightningCLI restores, without resolving a class path).
 - :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor.
 
 Class names are resolved only among modules already imported (the config's classes,
-imported when the config was parsed): see :func:`loaded_class`.
+imported when the config was parsed): see :func:`hnn_pl.safe_io.loaded_class`.
 """
 
 from __future__ import annotations
@@ -24,6 +24,8 @@ import re
 import sys
 from pathlib import Path
 from typing import Any
+
+from hnn_pl.safe_io import loaded_class
 
 #: ``ckpt_path`` values Lightning resolves itself (not files)
 SPECIAL_CKPT_PATHS = ("last", "best", "hpc")
@@ -50,20 +52,6 @@ def did_you_mean(word: str, candidates: list[str] | set[str], prefix: str = "") 
     if not close:
         return ""
     return "; did you mean " + " or ".join(prefix + c for c in close) + "?"
-
-
-def loaded_class(path: str) -> type | None:
-    """The class at the dotted ``path`` if its module is already imported, else
-    ``None``. Never imports: a name read from a file must not run code."""
-    module, _, name = path.rpartition(".")
-    obj = sys.modules.get(module)
-    for part in name.split("."):
-        obj = getattr(obj, part, None) if obj is not None else None
-    return obj if isinstance(obj, type) else None
-
-
-def class_name(cls: type) -> str:
-    return f"{cls.__module__}.{cls.__qualname__}"
 
 
 def init_parameters(cls: type) -> list[str]:
@@ -173,30 +161,6 @@ def check_ckpt_path(ckpt_path: str | None) -> bool:
     if not Path(ckpt_path).exists():
         raise CLIError(f"checkpoint {ckpt_path}: no such file")
     return True
-
-
-def check_checkpoint(ckpt_path: str, ckpt: dict[str, Any], model: Any) -> None:
-    """Refuse a checkpoint whose saved model class (``hnn_pl_model_class``, or
-    LightningCLI's ``_class_path``) is not the class the config builds. Compared as
-    names: a saved name counts as the config's class only if it is spelled like it or
-    names the same class in a module already imported."""
-    class_path = getattr(model, "class_path", None)
-    if not class_path:
-        return
-    config_cls = loaded_class(class_path)
-    names = {class_path} | ({class_name(config_cls)} if config_cls else set())
-    hparams = ckpt.get("hyper_parameters") or {}
-    for saved in (ckpt.get("hnn_pl_model_class"), hparams.get("_class_path")):
-        if saved is None:
-            continue
-        same = isinstance(saved, str) and (
-            saved in names or (config_cls is not None and loaded_class(saved) is config_cls)
-        )
-        if not same:
-            raise CLIError(
-                f"checkpoint {ckpt_path} holds a {saved} but the config builds a {class_path}: "
-                "use the config the checkpoint was trained with"
-            )
 
 
 def _plain(value: Any) -> bool:

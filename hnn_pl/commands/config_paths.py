@@ -18,7 +18,7 @@ def config_dir() -> Path:
     try:
         return Path(str(files("hnn_pl.configs")))
     except ModuleNotFoundError:  # a source tree put on sys.path by hand, not installed
-        return Path(__file__).resolve().parent.parent / "configs"
+        return Path(__file__).resolve().parents[2] / "configs"
 
 
 #: the bundled configs

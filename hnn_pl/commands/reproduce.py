@@ -2,7 +2,7 @@
 
 Every selected task × model × seed is trained from its bundled config (the same
 YAML ``fit`` uses, so the settings are the paper's), then evaluated with both
-protocols of :mod:`hnn_pl.evaluate`. Runs go to a pool of worker processes with
+protocols of :mod:`hnn_pl.evaluation`. Runs go to a pool of worker processes with
 one torch thread each (on 2 cores two single-threaded runs beat one two-threaded
 run); each finished run is written to the JSON file at once, so a failed or
 interrupted run loses nothing else, and ``RESULTS.md`` is rewritten from it.
@@ -32,8 +32,36 @@ from pathlib import Path
 from typing import Any
 
 from hnn_pl import tasks
-from hnn_pl.cli_errors import OneLineParser
+from hnn_pl.commands.cli_errors import OneLineParser
 from hnn_pl.safe_io import write_atomic
+
+#: what the report says of a task beside its numbers (``"results"``) and how its
+#: protocols read (``"reference"``, ``"clean"``; else the protocol's fields)
+NOTES: dict[str, dict[str, str]] = {
+    "real_pendulum": {
+        "results": (
+            "dissipative: the dissipative HNN (`real_pendulum_dissipative.yaml`, no published"
+            " number). On the paper's forward differences it learns the decay those "
+            "differences add (energy slope ≈ −0.045 per s against the recording's −0.011, as "
+            "the baseline does); on central differences it follows the recording (−0.011) and"
+            " its energy MSE falls below the HNN's: docs/friction.md."
+        ),
+    },
+    "pixel": {
+        "reference": (
+            "the reference's evaluation (analyze-pixels, 2019-05-20): one trajectory from θ₀ "
+            "= 0.2934, θ̇₀ = 0.7326, its first frame pair encoded, the latent integrated over"
+            " [0, 0.98·200] frames at 200 points, decoded, re-encoded and read by a linear "
+            "probe fitted on the training set through the HNN's encoder (for the baseline "
+            "too: `reproduce` pairs each baseline with the HNN of its seed; time to accuracy "
+            "uses each model's own), H = 1.9(1 − cos q) + p²"
+        ),
+        "clean": (
+            "all held-out 200-frame trajectories, each model its own encoder and probe, H = "
+            "1.875(1 − cos q) + p²"
+        ),
+    },
+}
 
 
 def _job_args(
@@ -79,9 +107,9 @@ def _run_one(
         import torch
 
         torch.set_num_threads(1)
-        from hnn_pl import evaluate
-        from hnn_pl.callbacks import TimeToAccuracy
-        from hnn_pl.cli import cli_main
+        from hnn_pl.commands.cli import cli_main
+        from hnn_pl.commands.tta import TimeToAccuracy
+        from hnn_pl.evaluation import evaluate_task
 
         args = _job_args(task, model, seed, max_steps, recipe) + list(overrides)
         cli = cli_main(args, run=False, save_config=False)
@@ -93,7 +121,7 @@ def _run_one(
         t0 = time.perf_counter()
         cli.trainer.fit(cli.model, cli.datamodule)
         t1 = time.perf_counter()
-        record.update(evaluate.evaluate(cli.model, cli.datamodule, task))
+        record.update(evaluate_task(task, cli.model, cli.datamodule))
         record.update(
             train_s=t1 - t0 - tta.scoring_seconds,
             eval_s=time.perf_counter() - t1,
@@ -149,7 +177,7 @@ def _trained(task: str, model: str, seed: int, recipe: str, path: Path) -> Any:
     """The model and data module of a finished run, the model's weights from ``path``."""
     import torch
 
-    from hnn_pl.cli import cli_main
+    from hnn_pl.commands.cli import cli_main
 
     cli = cli_main(_job_args(task, model, seed, None, recipe), run=False, save_config=False)
     cli.model.load_state_dict(torch.load(path, weights_only=True))
@@ -158,7 +186,7 @@ def _trained(task: str, model: str, seed: int, recipe: str, path: Path) -> Any:
 
 def _through_hnn(task: str) -> bool:
     """Whether ``task``'s reference protocol reads every model through the HNN's encoder."""
-    return getattr(tasks.get(task).reference, "probe_encoder", "own") == "hnn"
+    return tasks.get(task).reference.fields.get("probe_encoder") == "hnn"
 
 
 def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str) -> None:
@@ -169,7 +197,7 @@ def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str
     kept as ``reference_own_encoder`` and ``reference_probe`` says which was used."""
     import torch
 
-    from hnn_pl.evaluate import evaluate_protocol
+    from hnn_pl.evaluation import evaluate_task
 
     torch.set_num_threads(1)
     ok = {(r["task"], r["model"], r["seed"]): r for r in records if "error" not in r}
@@ -187,13 +215,14 @@ def probe_through_hnn(records: list[dict], paths: dict[tuple, Path], recipe: str
         dm.prepare_data()
         dm.setup("test")
         record["reference_own_encoder"] = record["reference"]
-        record["reference"] = evaluate_protocol(net, dm, tasks.get(task).reference, probe_model=hnn)
+        again = evaluate_task(task, net, dm, hnn, protocols=("reference",), losses=False)
+        record["reference"] = again["reference"]
         record["reference_probe"] = "hnn"
 
 
 def _prepare_data(jobs: list[tuple[str, str, int]], recipe: str) -> dict[str, float]:
     """Generate every job's data once, before the workers start; seconds per task."""
-    from hnn_pl.cli import cli_main
+    from hnn_pl.commands.cli import cli_main
 
     times: dict[str, float] = {}
     for task, model, seed in jobs:
@@ -228,7 +257,7 @@ def _fmt(median: float, worst: float | None = None) -> str:
 
 def _tta(runs: list[dict]) -> str:
     """``median (worst) s, k/n reached``: time to the joint criterion of
-    :class:`~hnn_pl.callbacks.TimeToAccuracy` (published HNN energy MSE and, where the
+    :class:`~hnn_pl.commands.tta.TimeToAccuracy` (published HNN energy MSE and, where the
     task has one, the paper recipe's clean state MSE)."""
     secs = [r["tta"]["seconds"] if r.get("tta") else math.inf for r in runs]
     reached = sum(math.isfinite(s) for s in secs)
@@ -279,7 +308,7 @@ def _contributing(calls: list[dict], records: list[dict]) -> list[dict]:
 def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
     """``RESULTS.md``: per task and model, ours (median and worst over seeds) beside the
     paper's."""
-    from hnn_pl.protocols import describe
+    from hnn_pl.evaluation import describe, task_protocol
 
     rows = summarize(records)
     lines = [
@@ -320,7 +349,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
             f"| {_fmt(*row['clean_energy'])} | {_fmt(*row['clean_drift'])} "
             f"| {row['train_s'][0]:.1f} | {row['eval_s'][0]:.1f} | {row['tta']} |"
         )
-    notes = {row["task"]: tasks.get(row["task"]).notes.get("results") for row in rows}
+    notes = {row["task"]: NOTES.get(row["task"], {}).get("results") for row in rows}
     lines += [f"\n**{task}.** {note}" for task, note in notes.items() if note]
     lines += ["", "## Long horizons (clean protocol)", ""]
     lines += [
@@ -352,7 +381,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
     lines += [
         "State MSE: `mean_{t,b,d} (y_pred − y_true)²` over the held-out rollouts; field "
         "error: `sqrt(Σ ‖f_θ(y) − f(y)‖²) / sqrt(Σ ‖f(y)‖²)` summed over every true state "
-        "`y` of the held-out trajectories (`hnn_pl.rollouts.field_error`; the real "
+        "`y` of the held-out trajectories (`hnn_pl.evaluation.metrics.field_error`; the real "
         "pendulum's `f` is the recording's central differences; pixel models: not "
         "applicable, their latent field has no true counterpart); valid prediction time "
         "as above (median, and the smallest over seeds). Median (worst) over the seeds "
@@ -416,9 +445,9 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         "|---|---|---|",
     ]
     for name in dict.fromkeys(r["task"] for r in records):
-        task = tasks.get(name)
         ref, clean = (
-            task.notes.get(k) or describe(task.protocol(k)) for k in ("reference", "clean")
+            NOTES.get(name, {}).get(k) or describe(task_protocol(name, k))
+            for k in ("reference", "clean")
         )
         lines.append(f"| {name} | {ref} | {clean} |")
     failures = [r for r in records if "error" in r]
@@ -452,7 +481,7 @@ def _new_run_dir(recipe: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from hnn_pl.__main__ import program_name
+    from hnn_pl.commands.main import program_name
 
     parser = OneLineParser(prog=f"{program_name()} reproduce", description=__doc__.split("\n\n")[0])
     parser.add_argument(

@@ -1,11 +1,12 @@
-"""How a model is rolled out and scored: the two kinds of protocol, as plain data.
+"""How a model is rolled out: the two kinds of protocol, each with ``run(model, dm) →
+Rollout`` (and ``prepare(dm)``: the truth made once, a model rolled out often).
 
-A :class:`Protocol` drives :func:`hnn_pl.rollouts.evaluate` (the rollout callback,
-``predict``, the clean evaluation); a :class:`ReferenceProtocol` is the published
-procedure of a state task with every quirk a named field (SPEC "Known quirks"),
-run by :func:`hnn_pl.evaluate.evaluate_reference`. Each task's instances live in
-:mod:`hnn_pl.tasks`; a config names one and overrides fields, it never restates it.
-Kept free of heavy imports.
+A :class:`Protocol` rolls a model out from held-out starts with :func:`hnn_pl.odeint`
+through the model's view (the rollout callback, ``predict``, the clean evaluation; the
+pixel task's reference); a :class:`ReferenceProtocol` is the published procedure of a
+state task with every quirk a named field (SPEC "Known quirks"), scipy's RK45 on the
+flattened batch. Each task names its protocols as data (:mod:`hnn_pl.tasks`);
+:func:`task_protocol` builds them, and a config overrides fields, never restates them.
 """
 
 from __future__ import annotations
@@ -15,9 +16,21 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
+from hnn_pl import tasks
+from hnn_pl.evaluation.reference import reference_case
+from hnn_pl.evaluation.rollout import Rollout, eval_mode
+from hnn_pl.evaluation.views import view_of
+from hnn_pl.integrate import METHODS
+
+
+class _Fields:
+    def replace(self, **overrides: Any) -> Any:
+        """A copy with ``overrides`` (unknown names raise ``TypeError``)."""
+        return dataclasses.replace(self, **overrides)
+
 
 @dataclass(frozen=True)
-class Protocol:
+class Protocol(_Fields):
     """A batched rollout of a model from held-out starts, and how it is scored.
 
     Attributes:
@@ -75,22 +88,31 @@ class Protocol:
             object.__setattr__(self, "start", tuple(float(v) for v in self.start))
         if self.dtype not in ("float64", "float32", "model"):
             raise ValueError(f"dtype must be 'float64', 'float32' or 'model', got {self.dtype!r}")
-        from hnn_pl.integrate import METHODS  # torch only; validates before any work
-
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; valid methods: {sorted(METHODS)}")
-
-    def replace(self, **overrides: Any) -> Protocol:
-        """A copy with ``overrides`` (unknown names raise ``TypeError``)."""
-        return dataclasses.replace(self, **overrides)
 
     def solver_kwargs(self) -> dict[str, Any]:
         """``method``, ``rtol``, ``atol``, ``step_size`` for :func:`hnn_pl.odeint`."""
         return {k: getattr(self, k) for k in ("method", "rtol", "atol", "step_size")}
 
+    def run(self, model: Any, dm: Any, probe_model: Any = None, floors: bool = True) -> Rollout:
+        """Roll ``model`` out from ``dm``'s held-out starts (see the model's view,
+        :mod:`hnn_pl.evaluation.views`). ``probe_model``: with ``probe_encoder="hnn"``,
+        the HNN whose encoder reads a pixel model's frames. ``floors=False`` skips the
+        true system's own rollouts (:func:`~hnn_pl.evaluation.views.error_floors`).
+        The models are put in eval mode and restored."""
+        reader = probe_model if self.probe_encoder == "hnn" else None
+        with eval_mode(model, reader):
+            return view_of(model).run(self, dm, reader, floors)
+
+    def prepare(self, dm: Any, solver: str = "torch") -> Any:
+        """``model ↦ Rollout`` on ``dm`` without the error floors (time to accuracy);
+        ``solver``: a rollout protocol always integrates with its own ``method``."""
+        return lambda model: self.run(model, dm, floors=False)
+
 
 @dataclass(frozen=True)
-class ReferenceProtocol:
+class ReferenceProtocol(_Fields):
     """The published energy-MSE procedure of one state task, quirks as named options.
 
     Attributes:
@@ -121,6 +143,23 @@ class ReferenceProtocol:
     compound_stretch: bool = False
     energy: str = "system"
     n_groups: int = 5
+
+    #: a reference rollout is float64 (the field's copy), at the protocol's tolerances
+    dtype = "float64"
+
+    def solver_kwargs(self) -> dict[str, Any]:
+        """dopri5 at ``rtol`` and ``atol`` (scipy's 1e-6 where unset), for given starts."""
+        return {"method": "dopri5", "rtol": self.rtol, "atol": self.atol or 1e-6}
+
+    def run(self, model: Any, dm: Any, solver: str = "scipy") -> Rollout:
+        """The published procedure on ``dm``'s system (see :meth:`ReferenceCase.run
+        <hnn_pl.evaluation.reference.ReferenceCase.run>`)."""
+        return self.prepare(dm, solver)(model)
+
+    def prepare(self, dm: Any, solver: str = "scipy") -> Any:
+        """``model ↦ Rollout`` on starts and truth made once."""
+        case = reference_case(dm, self)
+        return lambda model: case.run(model, solver)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -158,3 +197,30 @@ def describe(p: Protocol | ReferenceProtocol) -> str:
     ]
     base = ", ".join(f"{f.name}={getattr(default, f.name)}" for f in fields(p))
     return ", ".join(changed) or f"defaults ({base})"
+
+
+#: a task's protocol spec kind → its class (:class:`hnn_pl.tasks.Spec`)
+KINDS = {"rollout": Protocol, "reference": ReferenceProtocol}
+
+
+def build(spec: tasks.Spec) -> Protocol | ReferenceProtocol:
+    """The protocol a :class:`~hnn_pl.tasks.Spec` describes."""
+    return KINDS[spec.kind](**spec.fields)
+
+
+def task_protocol(
+    task: str, name: str = "clean", overrides: dict[str, Any] | None = None
+) -> Protocol | ReferenceProtocol:
+    """Task ``task``'s protocol ``name`` (``"clean"``, ``"reference"``, ``"independent"``)
+    with ``overrides``, checked now (``ValueError`` naming an unknown task, protocol or
+    field, or a bad value)."""
+    try:
+        spec = getattr(tasks.get(task), name) if name in tasks.PROTOCOLS else None
+    except KeyError as e:
+        raise ValueError(e.args[0]) from None
+    if spec is None:
+        raise ValueError(f"task {task!r} has no protocol {name!r}; known: {tasks.PROTOCOLS}")
+    try:
+        return build(spec).replace(**(overrides or {}))
+    except TypeError as e:
+        raise ValueError(f"overrides {overrides}: {e}") from None

@@ -34,20 +34,18 @@ from lightning.pytorch.cli import (
 
 # imported for their subclasses: what makes the short class names resolve
 from hnn_pl import data, models, systems
-from hnn_pl.__main__ import program_name
-from hnn_pl.cli_errors import (
+from hnn_pl.commands.cli_errors import (
     SPECIAL_CKPT_PATHS,
     CLIError,
-    check_checkpoint,
     check_ckpt_path,
     check_starts,
     check_threads,
     checkpoint_init_args,
-    loaded_class,
     one_line,
 )
-from hnn_pl.config_paths import resolve_config_args
-from hnn_pl.safe_io import load_checkpoint
+from hnn_pl.commands.config_paths import resolve_config_args
+from hnn_pl.commands.main import program_name
+from hnn_pl.safe_io import check_model_class, load_checkpoint, loaded_class
 
 #: the packages whose classes the CLI knows by their short names
 REGISTERED = (models, data, systems)
@@ -153,7 +151,8 @@ class HNNCLI(LightningCLI):
             return
         ckpt = load_checkpoint(ckpt_path)
         model = config.get("model")
-        check_checkpoint(ckpt_path, ckpt, model)
+        if getattr(model, "class_path", None):
+            check_model_class(ckpt, model.class_path, f"checkpoint {ckpt_path}")
         restored = checkpoint_init_args(ckpt, getattr(model, "init_args", None))
         if restored:
             update = {sub: {"model": {"class_path": model.class_path, "init_args": restored}}}
@@ -267,11 +266,9 @@ def _run_name(model: Any, data: Any) -> str:
 def _start_width(model: Any, datamodule: Any) -> int:
     """The width of a start ``predict`` integrates from: a pixel model's frame pair
     (``input_dim``), else the data's ``state_dim``."""
-    from hnn_pl.rollouts import is_pixel_model
+    from hnn_pl.evaluation import view_of
 
-    if is_pixel_model(model):
-        return int(model.hparams["input_dim"])
-    return int(datamodule.state_dim)
+    return view_of(model).start_width(datamodule)
 
 
 def _refuse_explicit_input_dim(model: Any) -> None:
@@ -296,7 +293,7 @@ def _refuse_explicit_input_dim(model: Any) -> None:
 
 def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) -> HNNCLI:
     """Run the CLI on ``args`` (``sys.argv[1:]`` when ``None``); returns the CLI object.
-    Bad input raises :class:`~hnn_pl.cli_errors.CLIError` (or another one-line
+    Bad input raises :class:`~hnn_pl.commands.cli_errors.CLIError` (or another one-line
     ``ValueError``) before any data, directory or checkpoint is written.
     ``save_config=False``: no ``config.yaml`` beside the run (programmatic fits)."""
     import sys

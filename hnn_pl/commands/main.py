@@ -1,0 +1,102 @@
+"""Entry point: ``python -m hnn_pl <command> ...``, or the console script ``hnn-pl``.
+
+The top-level help is printed without importing Lightning, so it is instant. Bad
+input (a bad option value, file or config, a non-finite loss) ends with one line,
+``<prog>: error: <what>``, and exit status 2; ``HNN_PL_TRACEBACK=1`` shows the
+traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import sys
+from pathlib import Path
+
+USAGE = """usage: {prog} <command> [options]
+
+Hamiltonian Neural Networks (Greydanus et al., 2019) with PyTorch Lightning.
+
+commands:
+  fit        train a model:        {prog} fit --config spring.yaml
+  validate   validate a checkpoint: ... validate --config spring.yaml --ckpt_path PATH
+  test       test a checkpoint (losses and rollout metrics), logged into its run
+  predict    roll a checkpoint out from the held-out (or your) starts: true and
+             predicted states, energies, H_θ, metrics -> rollouts.pt in its run
+  reproduce  train and evaluate every task x model x seed, write RESULTS.md
+             ({prog} reproduce --help)
+  stress     numerical stability of integrators and trained models, write
+             STABILITY.md ({prog} stress --help)
+  bump       change a trained HNN's learned energy and roll out ({prog} bump --help)
+
+A --config that is not a file is looked up in the bundled configs (".yaml" optional);
+--ckpt_path takes a checkpoint, a run (lightning_logs/spring_fast_hnn/version_0) or a
+run name's directory (lightning_logs/spring_fast_hnn: its latest run).
+Classes go by their short names: {prog} fit --model HNN --data SimulatedData
+--data.system MassSpring; `--model.help HNN` lists a class's options.
+`{prog} <command> --help` lists every option of a command; --version prints the version.
+
+bundled configs: {configs}
+"""
+
+
+def program_name() -> str:
+    """``hnn-pl`` when run as the console script, else ``python -m hnn_pl``."""
+    name = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
+    return "hnn-pl" if name.startswith("hnn-pl") else "python -m hnn_pl"
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        from hnn_pl.commands.config_paths import bundled_configs
+
+        configs = ", ".join(bundled_configs()) or "(none)"
+        print(USAGE.format(prog=program_name(), configs=configs))
+        return
+    if argv[0] in ("-V", "--version"):
+        from hnn_pl import __version__
+
+        print(f"hnn_pl {__version__}")
+        return
+    try:
+        if argv[0] == "reproduce":
+            from hnn_pl.commands.reproduce import main as reproduce
+
+            sys.exit(reproduce(argv[1:]))
+        if argv[0] == "bump":
+            from hnn_pl.commands.bump import main as bump
+
+            sys.exit(bump(argv[1:]))
+        if argv[0] == "stress":
+            from hnn_pl.commands.stress import main as stress
+
+            sys.exit(stress(argv[1:]))
+        from hnn_pl.commands.cli import cli_main
+
+        cli_main(argv)
+    except Exception as err:
+        message = user_error(err)
+        if message is None or os.environ.get("HNN_PL_TRACEBACK"):
+            raise
+        print(f"{program_name()}: error: {message}", file=sys.stderr)
+        sys.exit(2)
+
+
+#: what bad input raises (pickle's: a checkpoint that is more than weights); anything
+#: else is a bug and keeps its traceback
+USER_ERRORS = (ValueError, OSError, FloatingPointError, pickle.UnpicklingError)
+
+
+def user_error(err: BaseException) -> str | None:
+    """The message of the innermost bad-input exception behind ``err`` (jsonargparse
+    wraps the one an ``__init__`` raised), or ``None`` if there is none."""
+    found, seen = None, set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, USER_ERRORS):
+            found = err
+        err = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
+    if found is None:
+        return None
+    return (str(found).strip().splitlines() or [type(found).__name__])[0]

@@ -1,0 +1,173 @@
+"""Every score of a rollout (:class:`~hnn_pl.evaluation.rollout.Rollout`), and the
+statistics the reports share.
+
+Energy MSE of one trajectory is ``mean_t (E(y_true(t)) − E(y_pred(t)))²``; the reported
+value is the mean over trajectories, and its "±" is the standard deviation of
+``n_groups`` group means (trajectories split into equal consecutive groups) divided by
+``√n_groups``, as the reference README reports it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from hnn_pl.evaluation.rollout import Rollout
+
+
+def observed_mean(x: Tensor, dim: int | tuple[int, ...] | None = None) -> Tensor:
+    """``x.mean(dim)``; with ``NaN`` in ``x`` (unobserved truth) the mean of the rest."""
+    if not bool(torch.isnan(x).any()):
+        return x.mean() if dim is None else x.mean(dim)
+    return x.nanmean() if dim is None else x.nanmean(dim)
+
+
+def grouped_mean(per_trajectory: Tensor, n_groups: int) -> tuple[float, float]:
+    """Mean over trajectories and its "±": std of ``n_groups`` group means / √n_groups
+    (``nan`` with fewer trajectories than groups, or one group)."""
+    x = per_trajectory.double()
+    n = (len(x) // n_groups) * n_groups
+    if n_groups < 2 or n == 0:
+        return float(x.mean()), math.nan
+    groups = x[:n].reshape(n_groups, -1).mean(1)
+    return float(x.mean()), float(groups.std() / math.sqrt(n_groups))
+
+
+def split_loss(field: nn.Module, x: Tensor, dx: Tensor) -> tuple[float, float]:
+    """MSE of ``field.vector_field(x)`` against ``dx`` over a whole split ``(N, D)``, and
+    the reference's "±": std of the per-element squared errors / √N."""
+    with torch.no_grad():
+        sq = (field.vector_field(None, x) - dx) ** 2
+    return float(sq.mean()), float(sq.double().std() / math.sqrt(len(x)))
+
+
+def slope(t: Tensor, m: Tensor) -> Tensor:
+    """Least-squares slope of ``m (T,)`` against ``t (T,)``."""
+    tc = t - t.mean()
+    return (tc * (m - m.mean())).sum() / (tc * tc).sum()
+
+
+def energy_mse_per_trajectory(r: Rollout) -> Tensor:
+    """``mean_t (E(y_true) − E(y_pred))²``: ``(B,)`` (over observed times)."""
+    return observed_mean((r.e_true - r.e_pred) ** 2, 0)
+
+
+def h_drift(h: Tensor, scale: Tensor | float) -> Tensor:
+    """``max_t |H_θ(y_t) − H_θ(y_0)| / (|H_θ(y_0)| + scale)`` per row of ``h (T, B)``:
+    ``(B,)``. ``H_θ`` carries an arbitrary additive constant, so ``|H_θ(y_0)|`` alone is
+    no yardstick; ``scale`` (the spread of ``H_θ`` over training inputs) measures the
+    drift against the spread of the learned energy over the data."""
+    return (h - h[0]).abs().amax(0) / (h[0].abs() + scale)
+
+
+def conserved_drift(r: Rollout) -> Tensor:
+    """:func:`h_drift` of ``r.h_pred`` with ``r.h_scale``, mean over rows."""
+    return h_drift(r.h_pred, r.h_scale).mean()
+
+
+def motion_error(y_pred: Tensor, y_true: Tensor, fraction: float = 0.1) -> Tensor:
+    """Relative state error over the first ``fraction`` of the points (at least three):
+    ``Σ (y_pred − y_true)² / Σ (y_true − y_true[0])²`` over ``(T, B, D)`` states.
+
+    1 for a model that does not move, ≈ 0.25 for one at half the true speed, → 0 for
+    one that has learned the motion. Early points only: over long horizons any small
+    frequency error decorrelates the phase, so a whole-horizon state error cannot tell
+    a good model from a still one; an energy error alone cannot either (a state that
+    does not move conserves every energy).
+    """
+    k = max(3, math.ceil(fraction * y_true.shape[0]))
+    total = torch.nansum if bool(torch.isnan(y_true[:k]).any()) else torch.sum
+    moved = total((y_true[:k] - y_true[:1]) ** 2)
+    return total((y_pred[:k] - y_true[:k]) ** 2) / moved.clamp_min(torch.finfo(moved.dtype).tiny)
+
+
+def valid_time(r: Rollout, threshold: float = 0.025) -> Tensor:
+    """Valid prediction time per trajectory, ``(B,)``: the first ``t − t₀`` at which the
+    normalised state error ``‖y_pred − y_true‖ / rms_t ‖y_true‖`` exceeds ``threshold``
+    (the whole horizon if it never does)."""
+    scale = observed_mean((r.y_true**2).sum(-1), 0).sqrt()
+    err = (r.y_pred - r.y_true).norm(dim=-1) / scale.clamp_min(torch.finfo(scale.dtype).tiny)
+    over = err > threshold
+    first = torch.where(over.any(0), over.to(torch.uint8).argmax(0), len(r.t) - 1)
+    return r.t[first] - r.t[0]
+
+
+def field_error(r: Rollout) -> Tensor:
+    """Relative field error on the true states, one number over all of them:
+    ``sqrt(Σ_{t,b} ‖f_θ(y_true) − f(y_true)‖²) / sqrt(Σ_{t,b} ‖f(y_true)‖²)`` over the
+    ``(T, B, D)`` held-out states (a norm ratio over the whole set, so states where
+    ``f`` is near zero cannot dominate it); 0 for the true field, 1 for ``f_θ = 0``."""
+    den = (r.f_true**2).sum()
+    num = ((r.f_pred - r.f_true) ** 2).sum().sqrt()
+    return num / den.sqrt().clamp_min(torch.finfo(den.dtype).tiny)
+
+
+def energy_drift_slope(r: Rollout, energy: Tensor | None = None) -> Tensor:
+    """:func:`slope` in time of ``mean_b (E(t) − E(0)) / |E_true(0)|``, ``E`` the predicted
+    energy ``r.e_pred (T, B)`` unless given: the relative drift per unit time (signed;
+    with ``energy=r.e_true`` the truth's own, e.g. a measured decay)."""
+    e = r.e_pred if energy is None else energy
+    rel = observed_mean((e - e[:1]) / r.e_true[:1].abs().clamp_min(1e-12), 1)
+    return slope(r.t, rel)
+
+
+#: the metrics of :func:`score` on the rows that did not diverge, by name
+_ON_ROWS = {
+    "energy_mse": lambda r: energy_mse_per_trajectory(r).mean(),
+    "state_mse": lambda r: observed_mean((r.y_true - r.y_pred) ** 2),
+    "motion_error": lambda r: motion_error(r.y_pred, r.y_true),
+    "valid_time": lambda r: valid_time(r).mean(),
+    "energy_drift_slope": lambda r: energy_drift_slope(r),
+    "true_energy_drift_slope": lambda r: energy_drift_slope(r, r.e_true),
+}
+
+
+def report(r: Rollout) -> dict[str, float]:
+    """What a report adds to :func:`score`: the "±" ``energy_mse_pm`` of the rows that did
+    not diverge (``nan`` with fewer of them than ``r.n_groups``), ``n_trajectories``
+    and ``t_end``."""
+    out = {"n_trajectories": r.y_pred.shape[1], "t_end": float(r.t[-1])}
+    if r.e_true is not None:
+        ok = r if r.status is None else r.rows(r.status == 0)
+        out["energy_mse_pm"] = grouped_mean(energy_mse_per_trajectory(ok), r.n_groups)[1]
+    return out
+
+
+def score(r: Rollout) -> dict[str, float]:
+    """Every metric of a rollout against its truth, unprefixed, over the rows that did
+    not diverge (``diverged_rows`` counts the others; all NaN if none is left).
+
+    - ``energy_mse``, ``energy_drift_slope`` and
+      ``true_energy_drift_slope`` (the truth's): only when there is an energy;
+    - ``state_mse`` ``mean_{t,b,d} (y_true − y_pred)²``, ``motion_error``,
+      ``valid_time`` (mean of :func:`valid_time`);
+    - ``conserved_drift`` (HNN); ``field_error`` (when the data gives the true field;
+      over every row: it is read on the true states);
+    - ``floor_{integrator,chaos}_{energy,state}_mse``: the part of an error that is not
+      the model's (state tasks);
+    - pixel models: ``pixel_mse`` (decoded vs true frame pairs), ``latent_mse``
+      (integrated vs encoded true pairs) and ``probe_mse``.
+    """
+    diverged = 0 if r.status is None else int((r.status != 0).sum())
+    on_truth = {} if r.f_true is None else {"field_error": float(field_error(r))}
+    if diverged:
+        r = r.rows(r.status == 0)
+    names = [n for n in _ON_ROWS if r.e_true is not None or "energy" not in n]
+    if r.y_true.shape[1] == 0:
+        names += ["conserved_drift"] * (r.h_pred is not None)
+        return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged), **on_truth}
+    out = {name: _ON_ROWS[name](r) for name in names}
+    out["diverged_rows"] = diverged
+    if r.h_pred is not None:
+        out["conserved_drift"] = conserved_drift(r)
+    out.update(on_truth)
+    for key, value in (r.floors or {}).items():
+        name, kind = key.rsplit("_", 1)
+        out[f"floor_{name}_{kind}_mse"] = value.mean()
+    if r.has_frames:
+        out["pixel_mse"] = ((r.x_pred - r.x_true) ** 2).mean()
+        out["latent_mse"] = ((r.z_pred - r.z_true) ** 2).mean()
+        out["probe_mse"] = r.probe_mse
+    return {k: float(v) for k, v in out.items()}
