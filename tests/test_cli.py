@@ -225,10 +225,12 @@ def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(c
 
 
 @pytest.mark.parametrize("config", [c for c in CONFIGS if not c.startswith("pixel")])
-def test_every_state_config_fits_three_steps(config, tmp_path):
+def test_every_state_config_fits_three_steps(config, tmp_path, tmp_path_factory):
     """Three steps of each state config: it trains, validates and rolls out under its
-    run name and model class."""
-    cli = _fit(config, tmp_path, steps=3, extra=["--model.init_args.inner_steps=1"])
+    run name and model class. The configs of a task share their data: one cache."""
+    cache = tmp_path_factory.getbasetemp() / "cache"
+    extra = ["--model.init_args.inner_steps=1", f"--data.init_args.cache_dir={cache}"]
+    cli = _fit(config, tmp_path, steps=3, extra=extra)
     assert cli.trainer.global_step == 3
     assert type(cli.model).__name__ == _model_class(config)
     log_dir = Path(cli.trainer.logger.log_dir)
@@ -257,6 +259,11 @@ def test_a_config_extends_its_base(tmp_path, monkeypatch):
     )
     assert type(cli.model).__name__ == "Baseline" and cli.trainer.max_steps == 7
     assert cli.model.hparams.schedule == "onecycle" and cli.model.hparams.lr == 3e-3
+    # a class that lacks some of the base's init_args keeps those it has
+    other = tmp_path / "other.yaml"
+    other.write_text("base: spring_traj\nmodel: {class_path: hnn_pl.models.AutoencoderBaseline}\n")
+    init_args = _resolved(str(other))["model"]["init_args"]
+    assert "objective" not in init_args and init_args["lr"] == 3e-3
 
 
 @pytest.mark.parametrize("config", ["spring.yaml", "spring_baseline.yaml"])
