@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import io
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -136,7 +140,7 @@ def test_usage_names_the_program(argv0, prog, capsys, monkeypatch):
     assert out.startswith(f"usage: {prog} [options] fit") and "__main__" not in out, out
 
 
-@pytest.mark.parametrize("config", CONFIGS)
+@pytest.mark.parametrize("config", ["spring_fast.yaml", "pixel_fast.yaml"])
 def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
     """9 steps, validated every 2 epochs (4 steps each for the full-batch tasks, 2 for
     the pixel task): the last validation and its checkpoint come at step 8, inside the
@@ -158,6 +162,108 @@ def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
         assert "rollout/conserved_drift" not in tags["scalars"]
     assert expected <= set(tags["scalars"])
     assert {"rollout/phase_portrait", "rollout/energy"} <= set(tags["images"])
+
+
+_TWIN = re.compile(r"_(baseline|dissipative)$")
+
+
+def _run_name(config: str) -> str:
+    """The run name a bundled config logs under (a contract: README, dashboards)."""
+    stem = Path(config).stem
+    return stem if _TWIN.search(stem) else f"{stem}_hnn"
+
+
+def _model_class(config: str) -> str:
+    stem = Path(config).stem
+    if stem.endswith("_dissipative"):
+        return "DissipativeHNN"
+    kind = "Baseline" if stem.endswith("_baseline") else "HNN"
+    return f"Autoencoder{kind}" if stem.startswith("pixel") else kind
+
+
+@functools.cache
+def _resolved_text(config: str) -> str:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit) as exit_:
+        cli_main(["fit", "--config", config, "--print_config"])
+    assert not exit_.value.code
+    return out.getvalue()
+
+
+def _resolved(config: str) -> dict:
+    """``fit --config NAME --print_config``, in process, as a mapping."""
+    import yaml
+
+    return yaml.safe_load(_resolved_text(config))
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+def test_every_config_resolves_with_the_shared_trainer_defaults(config):
+    """Each bundled config loads (``--print_config``) under its run name, with its
+    model class, its task's callbacks and the trainer settings of every run."""
+    cfg = _resolved(config)
+    trainer = cfg["trainer"]
+    assert trainer["logger"]["init_args"]["name"] == _run_name(config)
+    assert trainer["logger"]["init_args"]["save_dir"] == "lightning_logs"
+    assert cfg["model"]["class_path"].rsplit(".", 1)[1] == _model_class(config)
+    assert cfg["seed_everything"] == 0
+    assert (trainer["accelerator"], trainer["devices"], trainer["max_epochs"]) == ("cpu", 1, -1)
+    assert trainer["inference_mode"] is False and trainer["enable_model_summary"] is False
+    task = re.sub(r"(_fast|_traj)?(_baseline|_dissipative)?$", "", Path(config).stem)
+    assert [c["init_args"]["task"] for c in trainer["callbacks"]] == [task, task]
+
+
+@pytest.mark.parametrize("config", [c for c in CONFIGS if _TWIN.search(Path(c).stem)])
+def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(config):
+    twin = _resolved(config)
+    hnn = _resolved(_TWIN.sub("", Path(config).stem) + ".yaml")
+    for cfg in (twin, hnn):
+        cfg["trainer"]["logger"]["init_args"].pop("name")
+        cfg["model"].pop("class_path")
+        cfg["model"]["init_args"].pop("momentum_only", None)
+    assert twin == hnn
+
+
+@pytest.mark.parametrize("config", [c for c in CONFIGS if not c.startswith("pixel")])
+def test_every_state_config_fits_three_steps(config, tmp_path, tmp_path_factory):
+    """Three steps of each state config: it trains, validates and rolls out under its
+    run name and model class. The configs of a task share their data: one cache."""
+    cache = tmp_path_factory.getbasetemp() / "cache"
+    extra = ["--model.init_args.inner_steps=1", f"--data.init_args.cache_dir={cache}"]
+    cli = _fit(config, tmp_path, steps=3, extra=extra)
+    assert cli.trainer.global_step == 3
+    assert type(cli.model).__name__ == _model_class(config)
+    log_dir = Path(cli.trainer.logger.log_dir)
+    assert log_dir.parent == tmp_path / _run_name(config)
+    assert {"train/loss", "val/loss", "rollout/energy_mse"} <= set(_tags(str(log_dir))["scalars"])
+
+
+def test_a_config_extends_its_base(tmp_path, monkeypatch):
+    """``base:`` reads the base first, then the config's own lines over it; bases chain,
+    and resolve beside the config or among the bundled configs."""
+    from hnn_pl.config_paths import config_chain, resolve_config_args
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.yaml").write_text("base: spring_fast\ntrainer: {max_steps: 7}\n")
+    (tmp_path / "twin.yaml").write_text("base: mine.yaml\nmodel: {class_path: Baseline}\n")
+    chain = [Path(path).name for path, _ in config_chain("twin.yaml")]
+    assert chain == ["spring.yaml", "spring_fast.yaml", "mine.yaml", "twin.yaml"]
+    args = resolve_config_args(["fit", "-c", "twin.yaml", "--trainer.max_steps=3"])
+    assert args[:3] == ["fit", "--config", str(CONFIG_DIR / "spring.yaml")]
+    assert args.count("--config") == 4 and args[-1] == "--trainer.max_steps=3"
+    cli = cli_main(
+        ["--config", "twin.yaml", "--trainer.logger=false"]
+        + [f"--data.init_args.cache_dir={tmp_path}"],
+        run=False,
+        save_config=False,
+    )
+    assert type(cli.model).__name__ == "Baseline" and cli.trainer.max_steps == 7
+    assert cli.model.hparams.schedule == "onecycle" and cli.model.hparams.lr == 3e-3
+    # a class that lacks some of the base's init_args keeps those it has
+    other = tmp_path / "other.yaml"
+    other.write_text("base: spring_traj\nmodel: {class_path: hnn_pl.models.AutoencoderBaseline}\n")
+    init_args = _resolved(str(other))["model"]["init_args"]
+    assert "objective" not in init_args and init_args["lr"] == 3e-3
 
 
 @pytest.mark.parametrize("config", ["spring.yaml", "spring_baseline.yaml"])

@@ -78,6 +78,11 @@ def _files(kind: str, tmp: Path) -> None:
     """Make the file a case needs in its working directory ``tmp``."""
     if kind == "empty-config":
         (tmp / "empty.yaml").write_text("")
+    elif kind == "base-missing":
+        (tmp / "mine.yaml").write_text("base: sprng.yaml\ntrainer: {max_steps: 2}\n")
+    elif kind == "base-cycle":
+        (tmp / "a.yaml").write_text("base: b.yaml\ntrainer: {max_steps: 2}\n")
+        (tmp / "b.yaml").write_text("base: a.yaml\n")
     elif kind in ("zero", "truncated", "random", "hostile-class-path", "hostile-model-class"):
         (tmp / "evilmod.py").write_text(EVIL)
         ckpt = tmp / "model.ckpt"
@@ -132,6 +137,17 @@ CASES = {
         ["fit", "--config", "empty.yaml"],
         "empty-config",
         "empty.yaml: the file is empty",
+    ),
+    "config-base-missing": (
+        ["fit", "--config", "mine.yaml"],
+        "base-missing",
+        "mine.yaml: base 'sprng.yaml' is neither a file beside it nor a bundled config; "
+        "did you mean spring.yaml?",
+    ),
+    "config-base-cycle": (
+        ["validate", "--config", "a.yaml"],
+        "base-cycle",
+        "a.yaml: its bases form a cycle: a.yaml -> b.yaml -> a.yaml",
     ),
     "class-path-typo": (
         [*FIT, "--model", "hnn_pl.models.HNNN"],

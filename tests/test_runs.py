@@ -13,7 +13,7 @@ import hnn_pl
 from hnn_pl import evaluation, tasks
 from hnn_pl.callbacks import FinalCheckpoint, RolloutCallback
 from hnn_pl.commands.cli import cli_main
-from hnn_pl.commands.config_paths import bundled_configs, resolve_config
+from hnn_pl.commands.config_paths import bundled_configs, config_chain, resolve_config
 from hnn_pl.data import SimulatedData
 from hnn_pl.evaluation import Protocol, ReferenceProtocol
 from hnn_pl.models import HNN, Baseline
@@ -59,8 +59,9 @@ def test_no_task_name_branches_outside_the_registry():
 
 def test_configs_name_a_protocol_and_do_not_restate_it():
     for name in bundled_configs():
-        cfg = yaml.safe_load(Path(resolve_config(name)).read_text())
-        rollout = [c for c in cfg["trainer"]["callbacks"] if "RolloutCallback" in c["class_path"]]
+        chain = [cfg for _, cfg in config_chain(resolve_config(name))]
+        callbacks = [cfg["trainer"]["callbacks"] for cfg in chain if "callbacks" in cfg["trainer"]]
+        rollout = [c for c in callbacks[-1] if "RolloutCallback" in c["class_path"]]
         assert len(rollout) == 1, name
         assert set(rollout[0]["init_args"]) <= {"task", "protocol", "every_n_epochs"}, name
         assert rollout[0]["init_args"]["task"] in tasks.TASKS

@@ -6,9 +6,10 @@ resolves a short name among the subclasses imported when the parser is built, so
 module imports every model, data module and system (only the full commands load this
 module; ``python -m hnn_pl --help`` does not).
 
-Runs without a config get :data:`TRAINER_DEFAULTS` (a config's trainer block overrides
-each key). ``--ckpt_path`` takes a checkpoint, a run directory (``…/version_N``) or a
-run name's directory (``lightning_logs/spring_fast_hnn``: its latest run), see
+Every run starts from :data:`TRAINER_DEFAULTS` (a config's trainer block overrides
+each key); a config may extend another (``base:``, see :mod:`hnn_pl.config_paths`).
+``--ckpt_path`` takes a checkpoint, a run directory (``…/version_N``) or a run name's
+directory (``lightning_logs/spring_fast_hnn``: its latest run), see
 :func:`resolve_checkpoint`; ``validate``, ``test`` and ``predict`` log into the run
 they evaluate. The optimiser and its schedule are the model's recipe
 (``--model.init_args.optimizer``, ``lr``, ``schedule``): LightningCLI's
@@ -50,15 +51,18 @@ from hnn_pl.safe_io import check_model_class, load_checkpoint, loaded_class
 #: the packages whose classes the CLI knows by their short names
 REGISTERED = (models, data, systems)
 
-#: trainer settings of a run that names its classes instead of a config (the configs
-#: set these too): the paper's 2000 steps, logged under a name from the classes
-#: (``--model HNN --data.system MassSpring``: ``lightning_logs/mass_spring_hnn``)
+#: the trainer settings every run shares (the configs give only what differs): the
+#: paper's 2000 steps on one CPU, a log line per step, validation every epoch, logged
+#: under the config's run name, else a name from the classes (``--model HNN
+#: --data.system MassSpring``: ``lightning_logs/mass_spring_hnn``)
 TRAINER_DEFAULTS: dict[str, Any] = {
     "max_steps": 2000,
     "max_epochs": -1,
     "accelerator": "cpu",
     "devices": 1,
     "inference_mode": False,
+    "log_every_n_steps": 1,
+    "check_val_every_n_epoch": 1,
     "enable_model_summary": False,
     "logger": {
         "class_path": "hnn_pl.loggers.TensorBoardLogger",

@@ -4,6 +4,13 @@ The bundled configs are the repository's top-level ``configs/``, which the wheel
 as the package ``hnn_pl.configs`` (``package-dir`` in pyproject.toml), so the same
 lookup works in a checkout (editable install) and in an installed wheel.
 
+A config may name another as its ``base:`` (a path relative to the config's directory,
+or a bundled config's name); it then holds only what differs from that config, and
+``--config child.yaml`` is read as ``--config <base> --config <child without base>``:
+jsonargparse applies the later config over the earlier one, as with two ``--config``
+given by hand (mappings merge key by key, a list or value replaces the base's, a new
+``class_path`` keeps the ``init_args`` the new class accepts). Bases chain.
+
 Kept free of heavy imports so ``python -m hnn_pl --help`` is instant.
 """
 
@@ -34,26 +41,40 @@ def resolve_config(name: str) -> str:
     """
     if Path(name).is_file():
         return check_config_file(name)
+    bundled = _bundled(name)
+    if bundled is None:
+        raise FileNotFoundError(f"config {name!r} is neither a file nor " + _suggest(name))
+    return bundled
+
+
+def _bundled(name: str) -> str | None:
+    """``<bundled configs>/<name>[.yaml]`` if it exists."""
     for candidate in (CONFIG_DIR / name, CONFIG_DIR / f"{name}.yaml"):
         if candidate.is_file():
             return str(candidate)
+    return None
+
+
+def _suggest(name: str) -> str:
+    """``a bundled config; did you mean X?``, or the list of the bundled configs."""
     import difflib
 
     names = bundled_configs()
     stems = {Path(n).stem: n for n in names}
     close = difflib.get_close_matches(Path(name).name, [*names, *stems], n=1, cutoff=0.6)
     if close:
-        raise FileNotFoundError(
-            f"config {name!r} is neither a file nor a bundled config; did you mean "
-            f"{stems.get(close[0], close[0])}?"
-        )
-    raise FileNotFoundError(
-        f"config {name!r} is neither a file nor one of the bundled configs: " + ", ".join(names)
-    )
+        return f"a bundled config; did you mean {stems.get(close[0], close[0])}?"
+    return "one of the bundled configs: " + ", ".join(names)
 
 
 def check_config_file(path: str) -> str:
     """``path`` if it holds a YAML mapping; else ValueError naming the file and the fault."""
+    load_config_file(path)
+    return path
+
+
+def load_config_file(path: str) -> dict:
+    """The YAML mapping in ``path``; else ValueError naming the file and the fault."""
     import yaml
 
     try:
@@ -70,7 +91,58 @@ def check_config_file(path: str) -> str:
         raise ValueError(f"config {path}: the file is empty (expected a mapping of options)")
     if not isinstance(data, dict):
         raise ValueError(f"config {path}: expected a mapping of options, got {type(data).__name__}")
-    return path
+    return data
+
+
+def config_chain(path: str) -> list[tuple[str, dict]]:
+    """``(path, mapping)`` of the config at ``path`` and of its bases, the first base
+    first; each mapping without its ``base`` key.
+
+    Raises:
+        ValueError: a base that is not a config name, is not found, or leads back to a
+            config of the chain (a cycle).
+    """
+    chain: list[tuple[str, dict]] = []
+    while True:
+        data = dict(load_config_file(path))
+        chain.insert(0, (path, data))
+        base = data.pop("base", None)
+        if base is None:
+            return chain
+        if not isinstance(base, str) or not base:
+            raise ValueError(f"config {path}: base must be a config's path or name, got {base!r}")
+        path = _resolve_base(base, path)
+        if any(Path(path).resolve() == Path(seen).resolve() for seen, _ in chain):
+            cycle = " -> ".join([*(p for p, _ in reversed(chain)), path])
+            raise ValueError(f"config {chain[-1][0]}: its bases form a cycle: {cycle}")
+
+
+def _resolve_base(base: str, config: str) -> str:
+    """``base`` beside ``config`` if that file exists, else a bundled config's name."""
+    beside = Path(config).parent / base
+    found = str(beside) if beside.is_file() else _bundled(base)
+    if found is None:
+        raise ValueError(
+            f"config {config}: base {base!r} is neither a file beside it nor " + _suggest(base)
+        )
+    return found
+
+
+def expand_config(name: str) -> list[str]:
+    """The ``--config`` values that build config ``name``: its resolved path, or, when it
+    names a base, its chain's paths and YAML texts (a config with a ``base`` as its
+    mapping without that key), the first base first."""
+    import yaml
+
+    path = resolve_config(name)
+    chain = config_chain(path)
+    if len(chain) == 1:
+        return [path]
+    values = [chain[0][0]]
+    for _, data in chain[1:]:
+        if data:
+            values.append(yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+    return values
 
 
 def bundled_configs() -> list[str]:
@@ -79,11 +151,19 @@ def bundled_configs() -> list[str]:
 
 
 def resolve_config_args(args: list[str]) -> list[str]:
-    """Apply :func:`resolve_config` to ``--config NAME``, ``--config=NAME``, ``-c NAME``."""
-    out = list(args)
-    for i, arg in enumerate(out):
-        if arg in ("--config", "-c") and i + 1 < len(out):
-            out[i + 1] = resolve_config(out[i + 1])
+    """Apply :func:`expand_config` to ``--config NAME``, ``--config=NAME``, ``-c NAME``:
+    each becomes one ``--config`` per file of its chain."""
+    out: list[str] = []
+    rest = list(args)
+    while rest:
+        arg = rest.pop(0)
+        if arg in ("--config", "-c") and rest:
+            name = rest.pop(0)
         elif arg.startswith("--config="):
-            out[i] = "--config=" + resolve_config(arg.split("=", 1)[1])
+            name = arg.split("=", 1)[1]
+        else:
+            out.append(arg)
+            continue
+        for value in expand_config(name):
+            out += ["--config", value]
     return out
