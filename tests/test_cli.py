@@ -241,7 +241,7 @@ def test_every_state_config_fits_three_steps(config, tmp_path, tmp_path_factory)
 def test_a_config_extends_its_base(tmp_path, monkeypatch):
     """``base:`` reads the base first, then the config's own lines over it; bases chain,
     and resolve beside the config or among the bundled configs."""
-    from hnn_pl.config_paths import config_chain, resolve_config_args
+    from hnn_pl.commands.config_paths import config_chain, resolve_config_args
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "mine.yaml").write_text("base: spring_fast\ntrainer: {max_steps: 7}\n")

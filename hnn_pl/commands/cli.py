@@ -7,7 +7,7 @@ module imports every model, data module and system (only the full commands load 
 module; ``python -m hnn_pl --help`` does not).
 
 Every run starts from :data:`TRAINER_DEFAULTS` (a config's trainer block overrides
-each key); a config may extend another (``base:``, see :mod:`hnn_pl.config_paths`).
+each key); a config may extend another (``base:``, see :mod:`hnn_pl.commands.config_paths`).
 ``--ckpt_path`` takes a checkpoint, a run directory (``…/version_N``) or a run name's
 directory (``lightning_logs/spring_fast_hnn``: its latest run), see
 :func:`resolve_checkpoint`; ``validate``, ``test`` and ``predict`` log into the run
