@@ -116,11 +116,9 @@ def quiet_cli(config: str, seed: int, threads: int = 1, max_steps: int | None = 
     """A bundled config as ``fit`` runs it, minus logger, checkpoints, progress bar,
     callbacks and validation, built but not run: ``cli.trainer.fit(cli.model,
     cli.datamodule)`` trains it. ``extra``: more CLI arguments (overrides)."""
-    from hnn_pl.commands.cli import cli_main
+    from hnn_pl.commands.cli import cli_main, quiet_args
 
     args = [f"--config={config}", f"--seed_everything={seed}", f"--threads={threads}"]
-    args += ["--trainer.logger=false", "--trainer.enable_checkpointing=false"]
-    args += ["--trainer.enable_progress_bar=false", "--trainer.enable_model_summary=false"]
-    args += ["--trainer.callbacks=[]", "--trainer.limit_val_batches=0"]
+    args += quiet_args()
     args += [f"--trainer.max_steps={max_steps}"] if max_steps else []
     return cli_main(args + list(extra), run=False, save_config=False)

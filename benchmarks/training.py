@@ -15,6 +15,7 @@ from unittest import mock
 import torch
 from common import main, measure, ms, table
 
+from hnn_pl.commands.cli import QUIET_TRAINER
 from hnn_pl.nets import MLP, DirectField, HamiltonianField
 
 TITLE = "Training step"
@@ -94,9 +95,8 @@ def lightning_table(quick: bool) -> str:
         before = measure(step, 0.1 if quick else 0.3)[0]
         clock = Clock()
         trainer = L.Trainer(
-            max_steps=n_fit, accelerator="cpu", devices=1, logger=False, enable_checkpointing=False,
-            enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
-            num_sanity_val_steps=0, callbacks=[clock],
+            max_steps=n_fit, accelerator="cpu", devices=1, num_sanity_val_steps=0,
+            **{**QUIET_TRAINER, "callbacks": [clock]},
         )  # fmt: skip
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from hnn_pl import HNN, Protocol, RecordingData
+from hnn_pl.commands.cli import QUIET_TRAINER
 from hnn_pl.evaluation import evaluate
 from hnn_pl.systems import MassSpring
 
@@ -40,13 +41,7 @@ def main(steps: int = 200, path: str = "springs.csv") -> dict[str, float]:
     write_recording(path)
     dm = RecordingData(path, system=MassSpring(), test_fraction=0.25, window=4)
     model = HNN(input_dim=2, hidden_dim=64, lr=1e-2, schedule="onecycle", objective="trajectory")
-    trainer = L.Trainer(
-        max_steps=steps,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    )
+    trainer = L.Trainer(max_steps=steps, **QUIET_TRAINER)
     trainer.fit(model, dm)
     metrics, _ = evaluate(model, dm, Protocol(t_end=None, n_points=None))
     return metrics

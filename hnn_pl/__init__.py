@@ -36,7 +36,6 @@ _LAZY = {
     "ReferenceProtocol": "hnn_pl.evaluation",
     "TASKS": "hnn_pl.tasks",
     "HamiltonianSystem": "hnn_pl.systems",
-    "cli_main": "hnn_pl.commands.cli",
 }
 
 #: the submodules reachable as attributes after ``import hnn_pl`` (a fixed list: no
@@ -44,7 +43,6 @@ _LAZY = {
 _SUBMODULES = (
     "bump",
     "callbacks",
-    "commands",
     "data",
     "evaluation",
     "integrate",

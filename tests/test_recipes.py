@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from hnn_pl import evaluation
+from hnn_pl.commands.cli import QUIET_TRAINER
 from hnn_pl.commands.tta import TimeToAccuracy
 from hnn_pl.data import SimulatedData
 from hnn_pl.models import HNN, Baseline
@@ -21,16 +22,8 @@ def _dm(tmp_path, **kw) -> SimulatedData:
 
 
 def _fit(model, dm, steps: int, callbacks=()) -> L.Trainer:
-    trainer = L.Trainer(
-        max_steps=steps,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        limit_val_batches=0,
-        precision="64-true",
-        callbacks=list(callbacks),
-    )
+    quiet = {**QUIET_TRAINER, "callbacks": list(callbacks)}
+    trainer = L.Trainer(max_steps=steps, precision="64-true", **quiet)
     trainer.fit(model, dm)
     return trainer
 

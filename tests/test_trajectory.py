@@ -9,6 +9,7 @@ import torch
 from torch import nn
 
 from hnn_pl import HNN, Baseline, DissipativeHNN, evaluation
+from hnn_pl.commands.cli import QUIET_TRAINER
 from hnn_pl.integrate import WINDOW_METHODS, odeint_windows
 from hnn_pl.models.base import DynamicsModel
 from hnn_pl.nets import DirectField
@@ -179,15 +180,7 @@ def _spring(window=None, **kwargs):
 def _fit(model, dm, steps):
     import lightning as L
 
-    trainer = L.Trainer(
-        max_steps=steps,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        limit_val_batches=0,
-        inference_mode=False,
-    )
+    trainer = L.Trainer(max_steps=steps, inference_mode=False, **QUIET_TRAINER)
     trainer.fit(model, dm)
     return trainer
 

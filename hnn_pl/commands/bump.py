@@ -16,9 +16,8 @@ def main(argv: list[str] | None = None) -> int:
     """``hnn-pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
     starts of a trained HNN and write ``bump.pt`` and ``bump.png`` beside the checkpoint."""
     from hnn_pl.commands.cli import cli_main, resolve_checkpoint
-    from hnn_pl.commands.cli_errors import OneLineParser
+    from hnn_pl.commands.cli_errors import OneLineParser, program_name
     from hnn_pl.commands.config_paths import resolve_config
-    from hnn_pl.commands.main import program_name
     from hnn_pl.safe_io import check_model_class, load_checkpoint, save_atomic
 
     parser = OneLineParser(prog=f"{program_name()} bump", description=main.__doc__)

@@ -18,6 +18,7 @@ they evaluate. The optimiser and its schedule are the model's recipe
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import re
@@ -43,9 +44,9 @@ from hnn_pl.commands.cli_errors import (
     check_threads,
     checkpoint_init_args,
     one_line,
+    program_name,
 )
 from hnn_pl.commands.config_paths import resolve_config_args
-from hnn_pl.commands.main import program_name
 from hnn_pl.safe_io import check_model_class, load_checkpoint, loaded_class
 
 #: the packages whose classes the CLI knows by their short names
@@ -69,6 +70,23 @@ TRAINER_DEFAULTS: dict[str, Any] = {
         "init_args": {"save_dir": "lightning_logs", "name": None},
     },
 }
+
+#: a run that records nothing and skips validation (reproduce, stress, benchmarks,
+#: tests, examples): no logger, checkpoints, progress bar, summary or callbacks
+QUIET_TRAINER: dict[str, Any] = {
+    "logger": False,
+    "enable_checkpointing": False,
+    "enable_progress_bar": False,
+    "enable_model_summary": False,
+    "callbacks": [],
+    "limit_val_batches": 0,
+}
+
+
+def quiet_args() -> list[str]:
+    """:data:`QUIET_TRAINER` as ``--trainer.KEY=VALUE`` options of :func:`cli_main`."""
+    return [f"--trainer.{k}={json.dumps(v)}" for k, v in QUIET_TRAINER.items()]
+
 
 #: LightningCLI's optimiser options, which would replace the recipe's optimiser while
 #: the hparams still record the recipe's

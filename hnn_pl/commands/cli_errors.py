@@ -25,7 +25,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hnn_pl.safe_io import loaded_class
+
+def program_name() -> str:
+    """``hnn-pl`` when run as the console script, else ``python -m hnn_pl``."""
+    name = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
+    return "hnn-pl" if name.startswith("hnn-pl") else "python -m hnn_pl"
+
 
 #: ``ckpt_path`` values Lightning resolves itself (not files)
 SPECIAL_CKPT_PATHS = ("last", "best", "hpc")
@@ -97,6 +102,8 @@ def one_line(message: str, parser: Any = None) -> str:
     option = re.search(r"Option '([^']+)' is not accepted", text)
     if option:
         owner = classes[-1] if classes else "the class"
+        from hnn_pl.safe_io import loaded_class  # torch: only once a class is named
+
         cls = loaded_class(owner) if classes else None
         names = init_parameters(cls) if cls is not None else []
         return f"{key}{owner} has no option {option.group(1)!r}" + did_you_mean(

@@ -11,7 +11,8 @@ from __future__ import annotations
 import os
 import pickle
 import sys
-from pathlib import Path
+
+from hnn_pl.commands.cli_errors import program_name
 
 USAGE = """usage: {prog} <command> [options]
 
@@ -38,12 +39,6 @@ Classes go by their short names: {prog} fit --model HNN --data SimulatedData
 
 bundled configs: {configs}
 """
-
-
-def program_name() -> str:
-    """``hnn-pl`` when run as the console script, else ``python -m hnn_pl``."""
-    name = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
-    return "hnn-pl" if name.startswith("hnn-pl") else "python -m hnn_pl"
 
 
 def main(argv: list[str] | None = None) -> None:

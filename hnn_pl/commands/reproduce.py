@@ -68,10 +68,9 @@ def _job_args(
     task: str, model: str, seed: int, max_steps: int | None, recipe: str = "paper"
 ) -> list[str]:
     config = tasks.get(task).config(model, recipe)
-    args = ["--config", config, f"--seed_everything={seed}", "--trainer.logger=false"]
-    args += ["--trainer.enable_checkpointing=false", "--trainer.enable_progress_bar=false"]
-    args += ["--trainer.callbacks=[]", "--trainer.limit_val_batches=0"]
-    args += ["--trainer.enable_model_summary=false"]
+    from hnn_pl.commands.cli import quiet_args
+
+    args = ["--config", config, f"--seed_everything={seed}", *quiet_args()]
     if max_steps is not None:
         args.append(f"--trainer.max_steps={max_steps}")
     return args
@@ -481,7 +480,7 @@ def _new_run_dir(recipe: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from hnn_pl.commands.main import program_name
+    from hnn_pl.commands.cli_errors import program_name
 
     parser = OneLineParser(prog=f"{program_name()} reproduce", description=__doc__.split("\n\n")[0])
     parser.add_argument(

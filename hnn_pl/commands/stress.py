@@ -177,20 +177,12 @@ def hard_cases(quick: bool) -> list[list[str]]:
 
 def trained_models(quick: bool) -> tuple[list[list[str]], dict, tuple[int, int]]:
     """Train ``spring_fast`` HNN and baseline, roll them out far and from high energy."""
-    from hnn_pl.commands.cli import cli_main
+    from hnn_pl.commands.cli import cli_main, quiet_args
 
     models, dm = {}, None
     for name in ("hnn", "baseline"):
         config = "spring_fast.yaml" if name == "hnn" else "spring_fast_baseline.yaml"
-        args = [
-            f"--config={config}",
-            "--trainer.logger=false",
-            "--trainer.enable_checkpointing=false",
-            "--trainer.enable_progress_bar=false",
-            "--trainer.enable_model_summary=false",
-            "--trainer.callbacks=[]",
-            "--threads=1",
-        ]
+        args = [f"--config={config}", *quiet_args(), "--threads=1"]
         if quick:
             args.append("--trainer.max_steps=20")
         cli = cli_main(args, run=False, save_config=False)
@@ -481,7 +473,7 @@ def faults_section() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from hnn_pl.commands.main import program_name
+    from hnn_pl.commands.cli_errors import program_name
 
     parser = OneLineParser(prog=f"{program_name()} stress", description=__doc__.split("\n\n")[0])
     parser.add_argument(

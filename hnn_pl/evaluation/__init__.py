@@ -11,10 +11,10 @@ from __future__ import annotations
 from typing import Any
 
 from hnn_pl import tasks
+from hnn_pl.evaluation.base import Rollout, eval_mode, in_dtype, integrate_field
 from hnn_pl.evaluation.metrics import grouped_mean, motion_error, observed_mean, report, score
 from hnn_pl.evaluation.protocols import Protocol, ReferenceProtocol, describe, task_protocol
 from hnn_pl.evaluation.reference import ReferenceCase, reference_case
-from hnn_pl.evaluation.rollout import Rollout, eval_mode, in_dtype, integrate_field
 from hnn_pl.evaluation.views import apply_probe, fit_probe, is_pixel_model, rollout, view_of
 
 __all__ = [

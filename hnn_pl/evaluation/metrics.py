@@ -1,4 +1,4 @@
-"""Every score of a rollout (:class:`~hnn_pl.evaluation.rollout.Rollout`), and the
+"""Every score of a rollout (:class:`~hnn_pl.evaluation.base.Rollout`), and the
 statistics the reports share.
 
 Energy MSE of one trajectory is ``mean_t (E(y_true(t)) − E(y_pred(t)))²``; the reported
@@ -14,7 +14,7 @@ import math
 import torch
 from torch import Tensor, nn
 
-from hnn_pl.evaluation.rollout import Rollout
+from hnn_pl.evaluation.base import Rollout
 
 
 def observed_mean(x: Tensor, dim: int | tuple[int, ...] | None = None) -> Tensor:

@@ -17,8 +17,8 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from hnn_pl import tasks
+from hnn_pl.evaluation.base import Rollout, eval_mode
 from hnn_pl.evaluation.reference import reference_case
-from hnn_pl.evaluation.rollout import Rollout, eval_mode
 from hnn_pl.evaluation.views import view_of
 from hnn_pl.integrate import METHODS
 

@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from hnn_pl.evaluation.rollout import Rollout, in_dtype
+from hnn_pl.evaluation.base import Rollout, in_dtype
 from hnn_pl.integrate import odeint, scipy_odeint
 
 

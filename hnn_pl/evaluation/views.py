@@ -23,8 +23,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from hnn_pl.evaluation.base import Rollout, eval_mode, integrate_field, learned_h
 from hnn_pl.evaluation.metrics import observed_mean, split_loss
-from hnn_pl.evaluation.rollout import Rollout, eval_mode, integrate_field, learned_h
 from hnn_pl.integrate import odeint
 
 #: size of the start perturbation that measures the chaos floor
