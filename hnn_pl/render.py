@@ -3,9 +3,8 @@
 The reference (``experiment-pixels/data.py``) renders gym's pyglet viewer, keeps red
 minus green, crops and resizes with ``scipy.misc.imresize``; none of that runs on a
 current stack. :func:`render_pendulum` draws the same scene analytically, batched and
-anti-aliased by pixel coverage; :func:`save_png` is a zlib-only PNG writer and
-:func:`frame_strip` tiles frames. ``python -m hnn_pl.render [path]`` (re)draws
-``docs/pixel_frames.png``.
+anti-aliased by pixel coverage; :func:`frame_strip` tiles frames
+(``python -m hnn_pl.commands.report`` draws ``docs/pixel_frames.png`` with it).
 
 Scene (gym ``PendulumEnv.render``, Pendulum-v0 era)::
 
@@ -20,15 +19,54 @@ a band across the rod (``arrow``). The reference's crop
 ``X[440:-220, 330:-330]`` of the 1000 × 1000 framebuffer (a 2× HiDPI screen; the crop
 needs more than 500 rows) at ``1000 / 4.4`` px per world unit is the window
 :data:`GYM_CROP_X`, :data:`GYM_CROP_Y`, which ``imresize`` (PIL bilinear) shrinks to 28 × 28.
+
+**Geometry.** ``θ = 0`` hangs straight down, ``θ > 0`` swings the rod to the image's
+**right** (``+x``) as in gym's viewer and the reference's ``get_theta``
+(``θ = θ_gym − π``): the tip is at ``length·(sin θ, cos θ)`` in image coordinates
+(``x`` right, ``y`` down). The rod is a capsule (all points within ``width/2`` of the
+pivot-tip segment) of value ``intensity`` on 0, minus the axle disc (drawn on top).
+
+**World → pixel.** The window ``x ∈ [x0, x1]``, ``y ∈ [y0, y1]`` (world units about
+the pivot, ``y`` down; default the reference crop, ``x ∈ ±0.748``,
+``y ∈ [−0.264, 1.232]``) is cut into ``size × size`` pixels of
+``hx = (x1 − x0)/size`` by ``hy = (y1 − y0)/size``: pixel ``[i, j]`` (row from the
+top, column from the left) has its centre at ``(x0 + (j + ½)hx, y0 + (i + ½)hy)``.
+With the defaults a pixel is 0.0534 units, the rod 18.7 px long and 3.7 px wide and
+the pivot at ``(i, j) = (4.44, 13.5)``.
+
+**Anti-aliasing.** A pixel holds ``intensity ×`` the ramp ``clamp(½ − d/h, 0, 1)`` of
+the signed distance ``d`` of its centre to the capsule (and the axle), ``h = √(hx·hy)``:
+exact coverage for straight axis-aligned edges, else off by ≤ ~0.06·intensity per
+pixel and < 0.5 % per frame. ``supersample = k > 1`` averages ``k × k`` sub-pixels
+(``k = 4``: ≤ 0.012·intensity, ``k²`` times the cost). ``filter = "tent"`` sees the
+scene through a tent of half-width 1 pixel, as PIL's bilinear 340 → 28 px
+down-sampling did to the reference frames (softer edges, same total): a 1-D tent
+profile of ``d`` for ``k = 1`` (within ~0.1·intensity of the 2-D tent), the exact
+separable tent over the sub-pixels for ``k > 1``. Centres more than ½ px (box) or
+1 px (tent) inside the rod give ``intensity``, as far outside exactly 0.
+
+**The torque arrow.** gym 0.12 draws its ``clockwise.png`` arrow (1 × 1 world units
+at the pivot, above the rod) in every frame the reference made: it scales the arrow
+away only when ``last_u`` is truthy, and the reference steps with ``u = 0``. Black
+over the rod, it leaves a dark band across it about 0.45 units from the pivot;
+``arrow=True`` multiplies the rod by ``1 − coverage`` of the band ``ring = (cx, cy,
+radius, width)``: all points whose distance to ``(cx, cy)`` (world units, ``y`` down)
+is within ``width/2`` of ``radius``, default :data:`GYM_ARROW_RING`. Only the part
+the hanging rod crosses is modelled, measured for ``|θ| ≤ 0.7`` (the pixel task's
+pendulum, ``|θ₀| < π/6`` and ``|θ̇₀| < 1``, swings less than 0.59); the arrow's
+head is not drawn.
+
+**Faithfulness.** The defaults (tent, ``k = 4``, the band, intensity ``128/255``)
+reproduce the reference's frames (gym 0.12.1 under a virtual display, red − green,
+crop, PIL bilinear, ``tests/data/gym_pendulum_frames.npz``): mean absolute
+difference 0.00048, max 0.020 over 701 angles ``|θ| ≤ 0.7`` (``k = 1`` box without
+the band, the old default: 0.0046, 0.28). Not modelled: the reference's 8-bit
+quantisation (±0.002; rounding changes the mean difference by < 1e-5).
 """
 
 from __future__ import annotations
 
 import math
-import struct
-import zlib
-from collections.abc import Sequence
-from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -88,51 +126,9 @@ def render_pendulum(
     ring: tuple[float, float, float, float] = GYM_ARROW_RING,
     chunk: int | None = None,
 ) -> Tensor:
-    """Gym Pendulum-v0 frames (reference preprocessing), ``(...,) -> (..., size, size)``.
-
-    **Geometry.** ``θ = 0`` hangs straight down, ``θ > 0`` swings the rod to the image's
-    **right** (``+x``) as in gym's viewer and the reference's ``get_theta``
-    (``θ = θ_gym − π``): the tip is at ``length·(sin θ, cos θ)`` in image coordinates
-    (``x`` right, ``y`` down). The rod is a capsule (all points within ``width/2`` of the
-    pivot-tip segment) of value ``intensity`` on 0, minus the axle disc (drawn on top).
-
-    **World → pixel.** The window ``x ∈ [x0, x1]``, ``y ∈ [y0, y1]`` (world units about
-    the pivot, ``y`` down; default the reference crop, ``x ∈ ±0.748``,
-    ``y ∈ [−0.264, 1.232]``) is cut into ``size × size`` pixels of
-    ``hx = (x1 − x0)/size`` by ``hy = (y1 − y0)/size``: pixel ``[i, j]`` (row from the
-    top, column from the left) has its centre at ``(x0 + (j + ½)hx, y0 + (i + ½)hy)``.
-    With the defaults a pixel is 0.0534 units, the rod 18.7 px long and 3.7 px wide and
-    the pivot at ``(i, j) = (4.44, 13.5)``.
-
-    **Anti-aliasing.** A pixel holds ``intensity ×`` the ramp ``clamp(½ − d/h, 0, 1)`` of
-    the signed distance ``d`` of its centre to the capsule (and the axle), ``h = √(hx·hy)``:
-    exact coverage for straight axis-aligned edges, else off by ≤ ~0.06·intensity per
-    pixel and < 0.5 % per frame. ``supersample = k > 1`` averages ``k × k`` sub-pixels
-    (``k = 4``: ≤ 0.012·intensity, ``k²`` times the cost). ``filter = "tent"`` sees the
-    scene through a tent of half-width 1 pixel, as PIL's bilinear 340 → 28 px
-    down-sampling did to the reference frames (softer edges, same total): a 1-D tent
-    profile of ``d`` for ``k = 1`` (within ~0.1·intensity of the 2-D tent), the exact
-    separable tent over the sub-pixels for ``k > 1``. Centres more than ½ px (box) or
-    1 px (tent) inside the rod give ``intensity``, as far outside exactly 0.
-
-    **The torque arrow.** gym 0.12 draws its ``clockwise.png`` arrow (1 × 1 world units
-    at the pivot, above the rod) in every frame the reference made: it scales the arrow
-    away only when ``last_u`` is truthy, and the reference steps with ``u = 0``. Black
-    over the rod, it leaves a dark band across it about 0.45 units from the pivot;
-    ``arrow=True`` multiplies the rod by ``1 − coverage`` of the band ``ring = (cx, cy,
-    radius, width)``: all points whose distance to ``(cx, cy)`` (world units, ``y`` down)
-    is within ``width/2`` of ``radius``, default :data:`GYM_ARROW_RING`. Only the part
-    the hanging rod crosses is modelled, measured for ``|θ| ≤ 0.7`` (the pixel task's
-    pendulum, ``|θ₀| < π/6`` and ``|θ̇₀| < 1``, swings less than 0.59); the arrow's
-    head is not drawn.
-
-    **Faithfulness.** The defaults (tent, ``k = 4``, the band, intensity ``128/255``)
-    reproduce the reference's frames (gym 0.12.1 under a virtual display, red − green,
-    crop, PIL bilinear, ``tests/data/gym_pendulum_frames.npz``): mean absolute
-    difference 0.00048, max 0.020 over 701 angles ``|θ| ≤ 0.7`` (``k = 1`` box without
-    the band, the old default: 0.0046, 0.28). Not modelled: the reference's 8-bit
-    quantisation (±0.002; rounding changes the mean difference by < 1e-5).
-
+    """Gym Pendulum-v0 frames (reference preprocessing), ``(...,) -> (..., size, size)``:
+    geometry, world → pixel map, anti-aliasing, the arrow band and how faithful the
+    defaults are: see the module's docstring.
     Args:
         theta: angles (radians), any shape; a float tensor sets the dtype (else the
             default dtype); the device follows ``theta``.
@@ -163,60 +159,77 @@ def render_pendulum(
     theta = torch.as_tensor(theta)
     dtype = theta.dtype if theta.is_floating_point() else torch.get_default_dtype()
     theta = theta.to(dtype)
-    batch_shape = theta.shape
     k, fine = supersample, size * supersample
-    (x0, x1), (y0, y1) = x_range, y_range
-    hx, hy = (x1 - x0) / fine, (y1 - y0) / fine
-    h = math.sqrt(hx * hy)
+    xs, ys, h = _grid(fine, x_range, y_range, dtype, theta.device)
     # the fine-grid ramp is box-shaped; a tent is then applied when shrinking by k
     ramp = filter if k == 1 else "box"
-    xs = x0 + (torch.arange(fine, dtype=dtype, device=theta.device) + 0.5) * hx
-    ys = y0 + (torch.arange(fine, dtype=dtype, device=theta.device) + 0.5) * hy
-    xs, ys = xs.view(1, 1, fine), ys.view(1, fine, 1)
-    r = width / 2
-    # the axle disc only touches the few pixels within axle_radius + 2 px of the pivot
-    axle, rows, cols = None, slice(0, 0), slice(0, 0)
-    if axle_radius > 0:
-        reach = axle_radius + 2 * h
-        rows = (ys.view(-1).abs() <= reach).nonzero().view(-1)
-        cols = (xs.view(-1).abs() <= reach).nonzero().view(-1)
-        if rows.numel() and cols.numel():
-            rows = slice(int(rows[0]), int(rows[-1]) + 1)
-            cols = slice(int(cols[0]), int(cols[-1]) + 1)
-            d = torch.hypot(xs[..., cols], ys[:, rows])
-            axle = _coverage(d.sub_(axle_radius).div_(h), ramp, intensity)
-    band = None
-    if arrow:
-        cx, cy, radius, band_width = ring
-        rho = torch.hypot(xs - cx, ys - cy).sub_(radius).abs_().sub_(band_width / 2)
-        band = 1 - _coverage(rho.div_(h), ramp)
-    tent = None
-    if k > 1 and filter == "tent":
-        tent = _tent_matrix(size, k, dtype, theta.device)
-    if chunk is None:
-        chunk = max(16, 32768 // (fine * fine))
+    axle = _axle(xs, ys, h, axle_radius, ramp, intensity)
+    band = 1 - _coverage(_ring_distance(xs, ys, ring).div_(h), ramp) if arrow else None
+    tent = _tent_matrix(size, k, dtype, theta.device) if k > 1 and filter == "tent" else None
+    chunk = chunk or max(16, 32768 // (fine * fine))
     flat = theta.reshape(-1)
     frames = torch.empty(flat.numel(), size, size, dtype=dtype, device=theta.device)
     for start in range(0, flat.numel(), chunk):
         th = flat[start : start + chunk].view(-1, 1, 1)
-        s, c = torch.sin(th), torch.cos(th)
-        along = xs * s + ys * c  # coordinate along the rod, 0 at the pivot
-        across = xs * c - ys * s  # perpendicular offset
-        # distance beyond either end of the segment: max(|along − L/2| − L/2, 0)
-        excess = along.sub_(length / 2).abs_().sub_(length / 2).clamp_(min=0.0)
-        sd = torch.hypot(across, excess).sub_(r).div_(h)
-        img = _coverage(sd, ramp, intensity)
+        img = _coverage(_rod_distance(th, xs, ys, length, width / 2).div_(h), ramp, intensity)
         if band is not None:
             img.mul_(band)
         if axle is not None:
-            img[..., rows, cols] = (img[..., rows, cols] - axle).clamp_(min=0.0)
+            (rows, cols), disc = axle
+            img[..., rows, cols] = (img[..., rows, cols] - disc).clamp_(min=0.0)
         if k > 1:
-            if tent is None:
-                img = img.view(-1, size, k, size, k).mean((2, 4))
-            else:
-                img = tent @ img @ tent.T
+            img = (
+                img.view(-1, size, k, size, k).mean((2, 4)) if tent is None else tent @ img @ tent.T
+            )
         frames[start : start + chunk] = img
-    return frames.reshape(*batch_shape, size, size)
+    return frames.reshape(*theta.shape, size, size)
+
+
+def _grid(
+    fine: int, x_range: tuple[float, float], y_range: tuple[float, float], dtype, device
+) -> tuple[Tensor, Tensor, float]:
+    """Pixel-centre coordinates ``xs (1, 1, fine)``, ``ys (1, fine, 1)`` of the window and
+    the pixel scale ``h = √(hx·hy)``."""
+    (x0, x1), (y0, y1) = x_range, y_range
+    hx, hy = (x1 - x0) / fine, (y1 - y0) / fine
+    xs = x0 + (torch.arange(fine, dtype=dtype, device=device) + 0.5) * hx
+    ys = y0 + (torch.arange(fine, dtype=dtype, device=device) + 0.5) * hy
+    return xs.view(1, 1, fine), ys.view(1, fine, 1), math.sqrt(hx * hy)
+
+
+def _axle(
+    xs: Tensor, ys: Tensor, h: float, radius: float, ramp: str, intensity: float
+) -> tuple[tuple[slice, slice], Tensor] | None:
+    """The axle disc's coverage on the few pixels within ``radius + 2 px`` of the pivot:
+    ``((rows, cols), disc)``, or ``None`` (no axle, or none of it in the window)."""
+    if radius <= 0:
+        return None
+    reach = radius + 2 * h
+    rows = (ys.view(-1).abs() <= reach).nonzero().view(-1)
+    cols = (xs.view(-1).abs() <= reach).nonzero().view(-1)
+    if not (rows.numel() and cols.numel()):
+        return None
+    rows = slice(int(rows[0]), int(rows[-1]) + 1)
+    cols = slice(int(cols[0]), int(cols[-1]) + 1)
+    d = torch.hypot(xs[..., cols], ys[:, rows])
+    return (rows, cols), _coverage(d.sub_(radius).div_(h), ramp, intensity)
+
+
+def _ring_distance(xs: Tensor, ys: Tensor, ring: tuple[float, float, float, float]) -> Tensor:
+    """Signed distance to the arrow's band ``ring = (cx, cy, radius, width)``:
+    ``| |(x, y) − (cx, cy)| − radius | − width/2``."""
+    cx, cy, radius, band_width = ring
+    return torch.hypot(xs - cx, ys - cy).sub_(radius).abs_().sub_(band_width / 2)
+
+
+def _rod_distance(th: Tensor, xs: Tensor, ys: Tensor, length: float, r: float) -> Tensor:
+    """Signed distance ``(n, fine, fine)`` to the capsule of radius ``r`` around the
+    segment from the pivot to ``length·(sin θ, cos θ)``, for angles ``th (n, 1, 1)``."""
+    s, c = torch.sin(th), torch.cos(th)
+    along = xs * s + ys * c
+    across = xs * c - ys * s
+    excess = along.sub_(length / 2).abs_().sub_(length / 2).clamp_(min=0.0)
+    return torch.hypot(across, excess).sub_(r)
 
 
 def frame_strip(
@@ -236,49 +249,3 @@ def frame_strip(
     sep = torch.full((n, hh, gap), gap_value, dtype=torch.uint8)
     tiled = torch.cat([img, sep], dim=2).permute(1, 0, 2).reshape(hh, -1)
     return tiled[:, : n * (ww + gap) - gap]
-
-
-def save_png(path: str | Path, image_uint8: Tensor | Sequence) -> None:
-    """Write ``image_uint8``, ``(H, W)`` grayscale or ``(H, W, 3)`` RGB with values 0..255
-    (anything ``torch.as_tensor`` takes), as an 8-bit PNG to ``path`` (parents created),
-    with nothing but ``zlib``."""
-    img = torch.as_tensor(image_uint8)
-    if img.dtype != torch.uint8:
-        if img.is_floating_point() or img.min() < 0 or img.max() > 255:
-            raise ValueError("save_png expects integer values in 0..255 (uint8)")
-        img = img.to(torch.uint8)
-    if img.dim() == 2:
-        color_type, channels = 0, 1
-    elif img.dim() == 3 and img.shape[-1] == 3:
-        color_type, channels = 2, 3
-    else:
-        raise ValueError(f"expected (H, W) or (H, W, 3), got {tuple(img.shape)}")
-    height, width = img.shape[:2]
-    rows = img.cpu().contiguous().reshape(height, width * channels)
-    raw = torch.cat([torch.zeros(height, 1, dtype=torch.uint8), rows], dim=1)  # filter 0
-    data = raw.numpy().tobytes()
-
-    def chunk(tag: bytes, payload: bytes) -> bytes:
-        body = tag + payload
-        return struct.pack(">I", len(payload)) + body + struct.pack(">I", zlib.crc32(body))
-
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, color_type, 0, 0, 0)
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
-    png += chunk(b"IDAT", zlib.compress(data, 9)) + chunk(b"IEND", b"")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(png)
-
-
-def _main(argv: Sequence[str] | None = None) -> None:
-    import sys
-
-    argv = sys.argv[1:] if argv is None else argv
-    path = argv[0] if argv else "docs/pixel_frames.png"
-    theta = torch.linspace(-0.6, 0.6, 9, dtype=torch.float64)
-    save_png(path, frame_strip(render_pendulum(theta), scale=4, gap=1))
-    print(f"wrote {path}: 9 frames at θ = −0.6, −0.45, …, 0.6")
-
-
-if __name__ == "__main__":
-    _main()

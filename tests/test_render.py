@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from hnn_pl.commands.report import save_png
 from hnn_pl.nets.autoencoder import PixelDecoder, PixelEncoder
 from hnn_pl.render import (
     GYM_ARROW_RING,
@@ -18,7 +19,6 @@ from hnn_pl.render import (
     GYM_INTENSITY,
     frame_strip,
     render_pendulum,
-    save_png,
 )
 from hnn_pl.systems.pixel_pendulum import PixelPendulum, simulate_gym_pendulum
 

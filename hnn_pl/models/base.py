@@ -1,4 +1,6 @@
-"""What the state-space models share: the two objectives, logging, optimiser, rollouts."""
+"""What the state-space models share: the derivative and trajectory objectives, their
+losses and metrics, the learned states; the optimiser and schedule are the recipe's
+(:mod:`hnn_pl.models.recipe`)."""
 
 from __future__ import annotations
 
