@@ -506,6 +506,9 @@ def main(argv: list[str] | None = None) -> int:
         "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml)",
     )
     parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, …)")
+    parser.add_argument(
+        "--first-seed", type=int, default=0, help="start at this seed (extend a --merge run)"
+    )
     parser.add_argument("--workers", type=int, default=2, help="processes; 0 runs in this process")
     parser.add_argument("--max-steps", type=int, default=None, help="override every config's steps")
     parser.add_argument(
@@ -528,8 +531,9 @@ def main(argv: list[str] | None = None) -> int:
         help="keep the runs already in the JSON file that this call does not redo",
     )
     args = parser.parse_args(argv)
-    if args.seeds < 1 or args.workers < 0 or (args.max_steps is not None and args.max_steps < 1):
-        parser.error("--seeds and --max-steps must be >= 1, --workers >= 0")
+    bad_steps = args.max_steps is not None and args.max_steps < 1
+    if args.seeds < 1 or args.first_seed < 0 or args.workers < 0 or bad_steps:
+        parser.error("--seeds and --max-steps must be >= 1, --first-seed and --workers >= 0")
     if args.tasks is None:
         args.tasks = tasks.TRAJ_TASKS if args.recipe == "traj" else tasks.DEFAULT_TASKS
     out = Path(args.out) if args.out else _new_run_dir(args.recipe) / "RESULTS.md"
@@ -544,7 +548,7 @@ def main(argv: list[str] | None = None) -> int:
         for t in args.tasks
         for m in args.models
         if m in tasks.get(t).models_for(args.recipe)
-        for s in range(args.seeds)
+        for s in range(args.first_seed, args.first_seed + args.seeds)
     ]
     if not jobs:
         parser.error(f"no task of {args.tasks} has a model of {args.models}")
