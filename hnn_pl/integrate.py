@@ -502,7 +502,11 @@ class Dopri5(_Solver):
             )
         super().__init__(rtol, atol, step_size, options)
         self._tables: dict[tuple, dict[str, Any]] = {}
-        self._stiff_limit = math.ceil(self.options["stiff_steps"] / _CHECK_EVERY) or math.inf
+
+    @property
+    def _stiff_limit(self) -> float:
+        """Checked steps in a row that make a row stiff (option ``stiff_steps``)."""
+        return math.ceil(self.options["stiff_steps"] / _CHECK_EVERY) or math.inf
 
     def _coefficients(self, dtype: torch.dtype, tdtype: torch.dtype, device) -> dict[str, Any]:
         """The tableau (``alpha`` in ``tdtype``) and :data:`_DENSE` as tensors, cached per
@@ -588,11 +592,13 @@ class Dopri5(_Solver):
         Returns the rows still integrating (``None``: none) and a list of the outputs
         passed (:meth:`_dense_output`; empty if none)."""
         y1, f1, err, mid, h_lambda = self.step(func, run.t, run.y, run.f, run.h, stiffness=check)
-        ratio = _error_ratio(err, run.y, y1, self.rtol, self.atol, run.t.dtype)
-        acc = ratio <= 1
-        blown, stiff, still = _watch(run, y1, h_lambda, acc, rows.limit, check)
-        t1 = torch.where(acc, torch.where(run.last, tt[-1], run.t + run.h), run.t)
-        h1, last = _clip_to_end(t1, _optimal_step(run.h, ratio), tt[-1])
+        with torch.no_grad():  # no gradient flows through the step-size control
+            ratio = _error_ratio(err, run.y, y1, self.rtol, self.atol, run.t.dtype)
+            acc = ratio <= 1
+            blown, stiff, still = _watch(run, y1, h_lambda, acc, rows.limit, check)
+        t_end = tt[-1]
+        t1 = torch.where(acc, torch.where(run.last, t_end, run.t + run.h), run.t)
+        h1, last = _clip_to_end(t1, _optimal_step(run.h, ratio), t_end)
         a2 = acc[:, None]
         y, f = torch.where(a2, y1, run.y), torch.where(a2, f1, run.f)
         upto = torch.searchsorted(tt, t1, right=True)
@@ -676,9 +682,8 @@ class Dopri5(_Solver):
 def _error_ratio(err, y, y1, rtol: float, atol: float, tdtype: torch.dtype) -> Tensor:
     """``‖err / (atol + rtol max(|y|, |y1|))‖_rms`` per row, ``(A, D) -> (A,)`` in
     ``tdtype``, NaN read as ``inf``: a step is accepted if it is ``<= 1``."""
-    with torch.no_grad():
-        tol = (atol + rtol * torch.maximum(y.abs(), y1.abs())).clamp_min(torch.finfo(y.dtype).tiny)
-        return _rms(err / tol).to(tdtype).nan_to_num(nan=math.inf)
+    tol = (atol + rtol * torch.maximum(y.abs(), y1.abs())).clamp_min(torch.finfo(y.dtype).tiny)
+    return _rms(err / tol).to(tdtype).nan_to_num(nan=math.inf)
 
 
 def _optimal_step(h: Tensor, ratio: Tensor) -> Tensor:
@@ -700,14 +705,13 @@ def _watch(run: _Active, y1, h_lambda, acc, limit, check: bool) -> tuple[Tensor,
     beyond the row's ``limit (B,)``); on ``check`` steps, the runs of ``run.stiff``
     (``h λ > 3.25``) and ``run.still`` (``|y1 − y| <= eps |y|`` with ``f ≠ 0``) grow
     by an accepted step that has the property and restart at 0 on one that has not."""
-    with torch.no_grad():
-        if not check:
-            return acc & ~torch.isfinite(y1).all(-1), run.stiff, run.still
-        eps = torch.finfo(y1.dtype).eps
-        still = ((y1 - run.y).abs() <= eps * run.y.abs()).all(-1) & (run.f != 0).any(-1)
-        stiff = torch.where(acc, (run.stiff + 1) * (h_lambda > 3.25), run.stiff)
-        still = torch.where(acc, (run.still + 1) * still, run.still)
-        return acc & ~(y1.abs().amax(-1) <= limit[run.idx]), stiff, still
+    if not check:
+        return acc & ~torch.isfinite(y1).all(-1), run.stiff, run.still
+    eps = torch.finfo(y1.dtype).eps
+    still = ((y1 - run.y).abs() <= eps * run.y.abs()).all(-1) & (run.f != 0).any(-1)
+    stiff = torch.where(acc, (run.stiff + 1) * (h_lambda > 3.25), run.stiff)
+    still = torch.where(acc, (run.still + 1) * still, run.still)
+    return acc & ~(y1.abs().amax(-1) <= limit[run.idx]), stiff, still
 
 
 def _rms(x: Tensor) -> Tensor:
