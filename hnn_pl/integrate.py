@@ -614,7 +614,8 @@ class Dopri5(_Solver):
         if n_finished == run.idx.shape[0]:
             return None, out
         if n_finished:
-            new = _Active(*(v[~(done | stopped)] for v in new))
+            keep = ~(done | stopped)
+            new = _Active(*(v[keep] for v in new))
         return new, out
 
     def _stop(self, rows, new, t0, blown, ratio, done, span, check) -> Tensor:
