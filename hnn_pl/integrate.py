@@ -47,7 +47,8 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from functools import partial
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import torch
 from torch import Tensor
@@ -144,10 +145,11 @@ class Solution:
 
 
 class _Rows:
-    """Per-row bookkeeping of a fixed-step integration: ``status (B,)``, ``t_stop (B,)``,
-    ``alive (B,)`` and the blow-up limit ``blowup · (1 + |y0|∞)``."""
+    """Per-row bookkeeping of one integration: ``status (B,)``, ``t_stop (B,)``,
+    ``alive (B,)`` and the blow-up limit ``blowup · (1 + |y0|∞)``. Stop times are
+    ``sign · t``: ``sign = -1.0`` while integrating backward (``s = -t``)."""
 
-    def __init__(self, y0: Tensor, blowup: float) -> None:
+    def __init__(self, y0: Tensor, blowup: float, sign: float = 1.0) -> None:
         B = y0.shape[0]
         self.status = torch.zeros(B, dtype=torch.long, device=y0.device)
         self.t_stop = torch.full((B,), math.nan, dtype=torch.float64, device=y0.device)
@@ -156,30 +158,33 @@ class _Rows:
         self.limit = (blowup * (1 + y0.detach().abs().amax(-1))).clamp(max=big)
         self.lowest = float(self.limit.min())
         self.any_stopped = False
+        self.sign = sign
 
     def bad(self, y: Tensor) -> Tensor:
         """``(B,)`` rows whose state is non-finite or beyond the limit."""
         return ~(y.detach().abs().amax(-1) <= self.limit)
 
-    def stop(self, rows: Tensor, code: Status, t: float) -> None:
+    def stop(self, rows: Tensor, code: Status, t: float | Tensor, idx: Tensor | None = None):
+        """Stop the alive ``rows`` (``(B,)`` bool) with ``code`` at time ``t`` (a float);
+        given ``idx (A,)``, ``rows`` and ``t`` are ``(A,)``, of the batch rows ``idx``."""
+        if idx is not None:
+            B = self.alive.shape[0]
+            rows, t = (x.new_zeros(B).index_put((idx,), x) for x in (rows, t))
         new = rows & self.alive
         self.any_stopped = self.any_stopped or bool(new.any())
         self.status = torch.where(new, int(code), self.status)
-        self.t_stop = torch.where(new, t, self.t_stop)
+        self.t_stop = torch.where(new, self.sign * t, self.t_stop)
         self.alive = self.alive & ~rows
 
 
 class _Solver:
     """Base of all methods (arguments as :func:`odeint`; unknown options raise).
 
-    ``order``: global error ``O(h^order)``; ``defaults``: the options and their
-    defaults; ``sign``: ``-1.0`` while integrating backward (``s = -t``), for messages.
+    ``order``: global error ``O(h^order)``; ``defaults``: the options and their defaults.
     """
 
     order: int = 0
     defaults: dict[str, Any] = {}
-    sign: float = 1.0
-    blowup: float = 1e6
 
     def __init__(
         self, rtol: float, atol: float, step_size: float | None, options: dict[str, Any] | None
@@ -192,27 +197,32 @@ class _Solver:
         self.rtol, self.atol, self.step_size = rtol, atol, step_size
         self.options = {**self.defaults, **(options or {})}
 
-    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Solution:
+    def integrate(
+        self, func: Field, y0: Tensor, t: Tensor, blowup: float = 1e6, sign: float = 1.0
+    ) -> Solution:
         """States at ``t``: ``y0 (B, D)``, increasing ``t (T,)`` -> ``(T, B, D)`` with
-        each row's status."""
+        each row's status; ``blowup`` as :func:`odeint`, ``sign`` as :class:`_Rows`."""
         raise NotImplementedError
 
 
 class _FixedStep(_Solver):
     """A fixed-step method: subclasses implement :meth:`step`."""
 
-    def step(self, func: Field, t: Tensor, y: Tensor, h: float, cache: Any) -> tuple[Tensor, Any]:
+    def step(
+        self, func: Field, t: Tensor, y: Tensor, h: float, cache: Any, rows: _Rows
+    ) -> tuple[Tensor, Any]:
         """One step ``y (B, D)`` at 0-d ``t`` -> ``(y(t + h), cache)``, ``h > 0``; ``cache``
-        is what ``_start`` or the previous step returned (e.g. an FSAL evaluation)."""
+        is what ``_start`` or the previous step returned (e.g. an FSAL evaluation); a
+        row whose step fails stops in ``rows``."""
         raise NotImplementedError
 
     def _start(self, func: Field, t0: Tensor, y0: Tensor) -> Any:
         return None
 
-    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Solution:
+    def integrate(self, func, y0, t, blowup=1e6, sign=1.0):
         ts = t.tolist()
         eps = torch.finfo(torch.float32).eps
-        self.rows = rows = _Rows(y0, self.blowup)
+        rows = _Rows(y0, blowup, sign)
         cache = self._start(func, t[0], y0)
         y, ys = y0, [y0]
         for t_a, t_b in zip(ts[:-1], ts[1:], strict=True):
@@ -223,9 +233,9 @@ class _FixedStep(_Solver):
             h = (t_b - t_a) / n
             for k in range(n):
                 tk = torch.tensor(t_a + k * h, dtype=y0.dtype, device=y0.device)
-                y_new, cache = self.step(func, tk, y, h, cache)
+                y_new, cache = self.step(func, tk, y, h, cache, rows)
                 if rows.any_stopped or not float(y_new.detach().abs().max()) <= rows.lowest:
-                    rows.stop(rows.bad(y_new), Status.DIVERGED, self.sign * (t_a + (k + 1) * h))
+                    rows.stop(rows.bad(y_new), Status.DIVERGED, t_a + (k + 1) * h)
                     y_new = torch.where(rows.alive[:, None], y_new, y)
                 y = y_new
             ys.append(torch.where(rows.alive[:, None], y, math.nan) if rows.any_stopped else y)
@@ -237,7 +247,7 @@ class Euler(_FixedStep):
 
     order = 1
 
-    def step(self, func, t, y, h, cache):
+    def step(self, func, t, y, h, cache, rows):
         return y + h * func(t, y), None
 
 
@@ -246,7 +256,7 @@ class RK4(_FixedStep):
 
     order = 4
 
-    def step(self, func, t, y, h, cache):
+    def step(self, func, t, y, h, cache, rows):
         k1 = func(t, y)
         k2 = func(t + h / 2, y + (h / 2) * k1)
         k3 = func(t + h / 2, y + (h / 2) * k2)
@@ -286,7 +296,7 @@ class Leapfrog(_FixedStep):
                 )
         return f0[..., y0.shape[-1] // 2 :]
 
-    def step(self, func, t, y, h, cache):
+    def step(self, func, t, y, h, cache, rows):
         q, p = y.chunk(2, dim=-1)
         k = q.shape[-1]
         p_half = p + (h / 2) * cache
@@ -335,7 +345,7 @@ class ImplicitMidpoint(_FixedStep):
     def _start(self, func, t0, y0):
         return func(t0, y0), 0.0, None, 0.0
 
-    def step(self, func, t, y, h, cache):
+    def step(self, func, t, y, h, cache, rows):
         k, h_prev, k_old, spacing = cache
         if k_old is not None:
             ratio = (h_prev + h) / (2 * spacing)
@@ -349,14 +359,14 @@ class ImplicitMidpoint(_FixedStep):
         else:
             tol = torch.maximum(self.atol + self.rtol * a, floor * (1 + a)) / h
         tm = t + h / 2
-        done = ~self.rows.alive[:, None] if self.rows.any_stopped else None
+        done = ~rows.alive[:, None] if rows.any_stopped else None
         for _ in range(self.options["max_iters"]):
             k_new = func(tm, _axpy(y, k, h / 2))
             close = (k_new - k).detach().abs_() <= tol
             if done is None:  # no row has converged yet: all rows take the new iterate
                 k = k_new
                 if bool(close.all()):
-                    return _axpy(y, k, h), (k, h, cache[0], (h_prev + h) / 2)
+                    break
                 ok = close.all(-1, keepdim=True)
                 if bool(ok.any()):
                     done = ok
@@ -364,13 +374,13 @@ class ImplicitMidpoint(_FixedStep):
             k = torch.where(done, k, k_new)
             done = done | close.all(-1, keepdim=True)
             if bool(done.all()):
-                return _axpy(y, k, h), (k, h, cache[0], (h_prev + h) / 2)
-        failed = ~done[:, 0] if done is not None else torch.ones_like(self.rows.alive)
-        finite = torch.isfinite(k_new).all(-1)
-        t_fail = self.sign * float((t + h / 2).max())
-        self.rows.stop(failed & finite, Status.NOT_CONVERGED, t_fail)
-        self.rows.stop(failed, Status.DIVERGED, t_fail)
-        k = torch.where(failed[:, None], 0.0, k)
+                break
+        else:
+            failed = ~done[:, 0] if done is not None else torch.ones_like(rows.alive)
+            t_fail = float((t + h / 2).max())
+            rows.stop(failed & torch.isfinite(k_new).all(-1), Status.NOT_CONVERGED, t_fail)
+            rows.stop(failed, Status.DIVERGED, t_fail)
+            k = torch.where(failed[:, None], 0.0, k)
         return _axpy(y, k, h), (k, h, cache[0], (h_prev + h) / 2)
 
 
@@ -379,34 +389,52 @@ def _axpy(y: Tensor, x: Tensor, a: float | Tensor) -> Tensor:
     return y + a * x if isinstance(a, Tensor) else torch.add(y, x, alpha=a)
 
 
-# Dormand-Prince 5(4): nodes, stage rows, 5th-order weights (row 7), error weights
-# (5th minus 4th order) and the weights of the midpoint used by the dense output.
-_DP_C = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0)
-_DP_A = (
-    (1 / 5,),
-    (3 / 40, 9 / 40),
-    (44 / 45, -56 / 15, 32 / 9),
-    (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
-    (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
-    (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84),
-)
-_DP_E = (
-    35 / 384 - 1951 / 21600,
-    0.0,
-    500 / 1113 - 22642 / 50085,
-    125 / 192 - 451 / 720,
-    -2187 / 6784 + 12231 / 42400,
-    11 / 84 - 649 / 6300,
-    -1 / 60,
-)
-_DP_MID = (
-    6025192743 / 30085553152 / 2,
-    0.0,
-    51252292925 / 65400821598 / 2,
-    -2691868925 / 45128329728 / 2,
-    187940372067 / 1594534317056 / 2,
-    -1776094331 / 19743644256 / 2,
-    11237099 / 235043384 / 2,
+@dataclass(frozen=True)
+class _ButcherTableau:
+    """An explicit Runge-Kutta method with an embedded error estimate (torchdiffeq's).
+
+    Stage ``i``: ``k_i = f(t + alpha_i h, y + h Σ_j beta_ij k_j)`` (``alpha_0 = 0``,
+    ``k_0 = f(t, y)``); the step ``y1 = y + h Σ_i c_sol_i k_i``, its error estimate
+    ``h Σ_i c_error_i k_i`` (higher minus lower order) and the dense-output midpoint
+    ``y(t + h/2) ≈ y + h Σ_i c_mid_i k_i``.
+    """
+
+    alpha: tuple[float, ...]
+    beta: tuple[tuple[float, ...], ...]
+    c_sol: tuple[float, ...]
+    c_error: tuple[float, ...]
+    c_mid: tuple[float, ...]
+
+
+_DOPRI5 = _ButcherTableau(
+    alpha=(0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0),
+    beta=(
+        (1 / 5,),
+        (3 / 40, 9 / 40),
+        (44 / 45, -56 / 15, 32 / 9),
+        (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
+        (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
+        (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84),
+    ),
+    c_sol=(35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0.0),
+    c_error=(
+        35 / 384 - 1951 / 21600,
+        0.0,
+        500 / 1113 - 22642 / 50085,
+        125 / 192 - 451 / 720,
+        -2187 / 6784 + 12231 / 42400,
+        11 / 84 - 649 / 6300,
+        -1 / 60,
+    ),
+    c_mid=(
+        6025192743 / 30085553152 / 2,
+        0.0,
+        51252292925 / 65400821598 / 2,
+        -2691868925 / 45128329728 / 2,
+        187940372067 / 1594534317056 / 2,
+        -1776094331 / 19743644256 / 2,
+        11237099 / 235043384 / 2,
+    ),
 )
 
 # Dense output: ``y(t0 + x h) ≈ Σ_v w_v(x) v`` for ``v = (y0, y1, y_mid, h f0, h f1)``,
@@ -419,6 +447,24 @@ _DENSE = (
     (18.0, 14.0, -32.0, 5.0, -3.0),
     (-8.0, -8.0, 16.0, -2.0, 2.0),
 )
+
+
+class _Active(NamedTuple):
+    """The ``A`` rows of a :class:`Dopri5` run still integrating: their rows ``idx`` in
+    the batch; state ``y`` and ``f = func(t, y)``, ``(A, D)``; time ``t`` and next step
+    ``h`` (float64); ``nxt``, the index of the next output time; ``last``, whether the
+    next step ends at the final time; ``stiff`` and ``still``, how many checked steps
+    in a row were stiff or left the state unchanged; all but ``y``, ``f`` ``(A,)``."""
+
+    idx: Tensor
+    y: Tensor
+    f: Tensor
+    t: Tensor
+    h: Tensor
+    nxt: Tensor
+    last: Tensor
+    stiff: Tensor
+    still: Tensor
 
 
 class Dopri5(_Solver):
@@ -446,6 +492,7 @@ class Dopri5(_Solver):
 
     order = 5
     defaults = {"max_steps": 100_000, "first_step": None, "stiff_steps": 500}
+    tableau = _DOPRI5
 
     def __init__(self, rtol, atol, step_size, options):
         if step_size is not None:
@@ -456,21 +503,22 @@ class Dopri5(_Solver):
         super().__init__(rtol, atol, step_size, options)
         self._tables: dict[tuple, dict[str, Any]] = {}
 
+    @property
+    def _stiff_limit(self) -> float:
+        """Checked steps in a row that make a row stiff (option ``stiff_steps``)."""
+        return math.ceil(self.options["stiff_steps"] / _CHECK_EVERY) or math.inf
+
     def _coefficients(self, dtype: torch.dtype, tdtype: torch.dtype, device) -> dict[str, Any]:
-        # cached per odeint call: inference-mode tensors must not reach a later autograd call
+        """The tableau (``alpha`` in ``tdtype``) and :data:`_DENSE` as tensors, cached per
+        ``odeint`` call (inference-mode tensors must not reach a later autograd call)."""
         key = (dtype, tdtype, device)
         if key not in self._tables:
-
-            def tensor(x, dt=dtype):
-                return torch.tensor(x, dtype=dt, device=device)
-
+            tab, kw = self.tableau, {"dtype": dtype, "device": device}
             self._tables[key] = {
-                "a": [tensor(row) for row in _DP_A],
-                "b": tensor((*_DP_A[-1], 0.0)),
-                "e": tensor(_DP_E),
-                "mid": tensor(_DP_MID),
-                "c": tensor(_DP_C, tdtype),
-                "dense": tensor(_DENSE),
+                "alpha": torch.tensor(tab.alpha, dtype=tdtype, device=device),
+                "beta": [torch.tensor(row, **kw) for row in tab.beta],
+                **{k: torch.tensor(getattr(tab, k), **kw) for k in ("c_sol", "c_error", "c_mid")},
+                "dense": torch.tensor(_DENSE, **kw),
             }
         return self._tables[key]
 
@@ -483,121 +531,133 @@ class Dopri5(_Solver):
         Hairer's stiffness estimate ``h λ = h ‖k7 − k6‖ / ‖y7 − y6‖`` ``(A,)``.
         """
         coef = self._coefficients(y.dtype, t.dtype, y.device)
-        tc = torch.addcmul(t[:, None], h[:, None], coef["c"]).to(y.dtype)
+        tc = torch.addcmul(t[:, None], h[:, None], coef["alpha"]).to(y.dtype)
         hy = h.to(y.dtype)[:, None]
         ks = [f]
-        for i, a in enumerate(coef["a"], start=1):
-            y_stage = y + hy * (torch.stack(ks, -1) @ a)
+        for i, beta in enumerate(coef["beta"], start=1):
+            y_stage = y + hy * (torch.stack(ks, -1) @ beta)
             ks.append(func(tc[:, i : i + 1], y_stage))
             if i == 5:
                 y6 = y_stage
         k = torch.stack(ks, -1)
-        y1 = y + hy * (k @ coef["b"])
+        y1 = y + hy * (k @ coef["c_sol"])
         h_lambda = None
         if stiffness:  # stages 6 and 7 share the time t + h
             with torch.no_grad():
                 h_lambda = h * (_rms(ks[6] - ks[5]) / _rms(y1 - y6)).to(h.dtype)
-        return y1, ks[-1], hy * (k @ coef["e"]), y + hy * (k @ coef["mid"]), h_lambda
+        return y1, ks[-1], hy * (k @ coef["c_error"]), y + hy * (k @ coef["c_mid"]), h_lambda
 
-    def integrate(self, func: Field, y0: Tensor, t: Tensor) -> Solution:
+    def integrate(self, func, y0, t, blowup=1e6, sign=1.0):
         B, D = y0.shape
-        dtype, dev = y0.dtype, y0.device
-        tdtype = torch.float64 if dev.type != "mps" else dtype
-        coef = self._coefficients(dtype, tdtype, dev)
-        eps = torch.finfo(dtype).eps
+        eps = torch.finfo(y0.dtype).eps
         if self.rtol < eps / 10 and self.atol < eps / 10 * float(y0.abs().max()):
             raise ValueError(
-                f"dopri5: rtol = {self.rtol:g}, atol = {self.atol:g} are below {dtype}'s "
+                f"dopri5: rtol = {self.rtol:g}, atol = {self.atol:g} are below {y0.dtype}'s "
                 f"resolution (eps = {eps:.2g}): no step can meet them. Loosen them or "
                 "integrate in float64."
             )
-        tt = t.detach().to(tdtype)
-        t_end, span = tt[-1], float(tt[-1] - tt[0])
-        out_idx, out_val = [torch.arange(B, device=dev)], [y0]
-        rows = _Rows(y0, self.blowup)
-        idx = torch.arange(B, device=dev)
-        tc = tt[0].expand(B).clone()
-        y = y0
-        f = func(tc.to(dtype)[:, None], y)
-        if self.options["first_step"] is None:
-            h = self._initial_step(func, tc, y, f)
-        else:
-            h = torch.full((B,), abs(float(self.options["first_step"])), dtype=tdtype, device=dev)
-        last = tc + 1.01 * h >= t_end
-        h = torch.where(last, t_end - tc, h)
-        nxt = torch.ones(B, dtype=torch.long, device=dev)
-        stiff_run = torch.zeros(B, dtype=torch.long, device=dev)
-        stall_run = torch.zeros(B, dtype=torch.long, device=dev)
-        tiny = torch.finfo(dtype).tiny
-        stiff_limit = math.ceil(self.options["stiff_steps"] / _CHECK_EVERY) or math.inf
+        tt = t.detach().to(torch.float64 if y0.device.type != "mps" else y0.dtype)
+        rows, span = _Rows(y0, blowup, sign), float(tt[-1] - tt[0])
+        run = self._start(func, y0, tt)
+        outs = [(run.idx, y0)]
         for n_step in range(self.options["max_steps"]):
-            check = n_step % _CHECK_EVERY == 0
-            y1, f1, err, mid, h_lambda = self.step(func, tc, y, f, h, stiffness=check)
-            with torch.no_grad():
-                tol = (self.atol + self.rtol * torch.maximum(y.abs(), y1.abs())).clamp_min(tiny)
-                ratio = _rms(err / tol).to(tdtype).nan_to_num(nan=math.inf)
-                acc = ratio <= 1
-                blown = acc & ~torch.isfinite(y1).all(-1)
-                if check:
-                    still = ((y1 - y).abs() <= eps * y.abs()).all(-1) & (f != 0).any(-1)
-                    stiff_run = torch.where(acc, (stiff_run + 1) * (h_lambda > 3.25), stiff_run)
-                    stall_run = torch.where(acc, (stall_run + 1) * still, stall_run)
-                    blown = acc & ~(y1.abs().amax(-1) <= rows.limit[idx])
-            t1 = torch.where(acc, torch.where(last, t_end, tc + h), tc)
-            upto = torch.searchsorted(tt, t1, right=True)
-            counts = upto - nxt
-            h1 = h * (0.9 * ratio.pow(-0.2)).clamp(0.2, 10.0)
-            done = acc & last & ~blown
-            last = t1 + 1.01 * h1 >= t_end
-            h1 = torch.where(last, t_end - t1, h1)
-            under = (h1 < 1e-14 * t1.abs().clamp(min=span)) & ~done
-            stopped = torch.zeros_like(done)
-            under = under | blown
-            if check:
-                under = under | (stall_run >= _STALL_CHECKS) | (stiff_run >= stiff_limit)
-            if bool(under.any()):
-                stops = (
-                    (blown | (under & ~torch.isfinite(ratio)), Status.DIVERGED),
-                    (stall_run >= _STALL_CHECKS, Status.STALLED),
-                    (stiff_run >= stiff_limit, Status.STIFF),
-                    (under, Status.STEP_UNDERFLOW),
-                )
-                for mask, code in stops:
-                    mask = mask & ~stopped & ~done
-                    rows.stop(_scatter(mask, idx, B), code, 0.0)
-                    rows.t_stop[idx[mask]] = self.sign * torch.where(blown, tc, t1)[mask]
-                    stopped = stopped | mask
-                counts = torch.where(blown, 0, counts)
-            n_done, n_out = torch.stack([done.sum(), counts.sum()]).tolist()
-            if n_out:
-                start = counts.cumsum(0) - counts
-                owner = torch.bincount(start, minlength=n_out + 1)[:n_out].cumsum(0) - 1
-                j = torch.arange(n_out, device=dev) + (nxt - start)[owner]
-                x = ((tt[j] - tc[owner]) / h[owner]).to(dtype)
-                powers = x[:, None].expand(n_out, 4).cumprod(1)[:, :, None]
-                w = coef["dense"][0] + (powers * coef["dense"][1:]).sum(1)
-                hy = h.to(dtype)[:, None]
-                v = torch.stack([y, y1, mid, hy * f, hy * f1], -1)
-                out_val.append((v[owner] * w[:, None]).sum(-1))
-                out_idx.append(j * B + idx[owner])
-            a2 = acc[:, None]
-            y, f, tc, h, nxt = torch.where(a2, y1, y), torch.where(a2, f1, f), t1, h1, upto
-            finished = done | stopped
-            n_finished = n_done + int(stopped.sum()) if rows.any_stopped else n_done
-            if n_finished == idx.shape[0]:
+            run, out = self._attempt(func, run, tt, span, rows, n_step % _CHECK_EVERY == 0)
+            outs.extend(out)
+            if run is None:
                 break
-            if n_finished:
-                keep = ~finished
-                state = (idx, y, f, tc, h, nxt, last, stiff_run, stall_run)
-                idx, y, f, tc, h, nxt, last, stiff_run, stall_run = (v[keep] for v in state)
         else:
-            rows.stop(
-                _scatter(torch.ones_like(idx, dtype=torch.bool), idx, B), Status.MAX_STEPS, 0.0
-            )
-            rows.t_stop[idx] = self.sign * tc
-        out = y0.new_full((t.shape[0] * B, D), math.nan)
-        out = out.index_put((torch.cat(out_idx),), torch.cat(out_val))
+            rows.stop(torch.ones_like(run.idx, dtype=torch.bool), Status.MAX_STEPS, run.t, run.idx)
+        idx, val = (torch.cat(x) for x in zip(*outs))
+        out = y0.new_full((t.shape[0] * B, D), math.nan).index_put((idx,), val)
         return Solution(out.reshape(t.shape[0], B, D), rows.status, rows.t_stop)
+
+    def _start(self, func: Field, y0: Tensor, tt: Tensor) -> _Active:
+        """All rows at ``tt[0]``, with Hairer's first step (or option ``first_step``)."""
+        B, dev = y0.shape[0], y0.device
+        t0 = tt[0].expand(B).clone()
+        f0 = func(t0.to(y0.dtype)[:, None], y0)
+        if self.options["first_step"] is None:
+            h = self._initial_step(func, t0, y0, f0)
+        else:
+            h = torch.full((B,), abs(float(self.options["first_step"])), dtype=tt.dtype, device=dev)
+        h, last = _clip_to_end(t0, h, tt[-1])
+        zero = torch.zeros(B, dtype=torch.long, device=dev)
+        one = torch.ones_like(zero)
+        return _Active(torch.arange(B, device=dev), y0, f0, t0, h, one, last, zero, zero)
+
+    def _attempt(self, func, run, tt, span, rows, check) -> tuple[_Active | None, list]:
+        """One attempted step of the rows ``run`` towards the output times ``tt (T,)``:
+        accepted where :func:`_error_ratio` ``<= 1``, next step :func:`_optimal_step`,
+        failing rows stopped (:meth:`_stop`; ``check``: one step in ``_CHECK_EVERY``).
+        Returns the rows still integrating (``None``: none) and a list of the outputs
+        passed (:meth:`_dense_output`; empty if none)."""
+        y1, f1, err, mid, h_lambda = self.step(func, run.t, run.y, run.f, run.h, stiffness=check)
+        with torch.no_grad():  # no gradient flows through the step-size control
+            ratio = _error_ratio(err, run.y, y1, self.rtol, self.atol, run.t.dtype)
+            acc = ratio <= 1
+            blown, stiff, still = _watch(run, y1, h_lambda, acc, rows.limit, check)
+        t_end = tt[-1]
+        t1 = torch.where(acc, torch.where(run.last, t_end, run.t + run.h), run.t)
+        h1, last = _clip_to_end(t1, _optimal_step(run.h, ratio), t_end)
+        a2 = acc[:, None]
+        y, f = torch.where(a2, y1, run.y), torch.where(a2, f1, run.f)
+        upto = torch.searchsorted(tt, t1, right=True)
+        new = _Active(run.idx, y, f, t1, h1, upto, last, stiff, still)
+        done = acc & run.last & ~blown
+        stopped = self._stop(rows, new, run.t, blown, ratio, done, span, check)
+        counts = new.nxt - run.nxt
+        if rows.any_stopped:
+            counts = torch.where(blown, 0, counts)
+        n_done, n_out = torch.stack([done.sum(), counts.sum()]).tolist()
+        out = [self._dense_output(run, y1, f1, mid, tt, counts, n_out, rows)] if n_out else []
+        n_finished = n_done + int(stopped.sum()) if rows.any_stopped else n_done
+        if n_finished == run.idx.shape[0]:
+            return None, out
+        if n_finished:
+            keep = ~(done | stopped)
+            new = _Active(*(v[keep] for v in new))
+        return new, out
+
+    def _stop(self, rows, new, t0, blown, ratio, done, span, check) -> Tensor:
+        """Stop detection after a step from ``t0 (A,)`` to ``new``: a row not ``done``
+        stops in ``rows`` with the first reason that holds: DIVERGED (``blown``, or an
+        underflow after a non-finite error), STALLED (``_STALL_CHECKS`` checks), STIFF
+        (option ``stiff_steps``), STEP_UNDERFLOW (``h < 1e-14 max(|t|, span)``); at
+        ``t0`` if blown, else at ``new.t``. Returns the stopped rows ``(A,)`` (bool)."""
+        under = (new.h < 1e-14 * new.t.abs().clamp(min=span)) & ~done | blown
+        if check:
+            under = under | (new.still >= _STALL_CHECKS) | (new.stiff >= self._stiff_limit)
+        stopped = torch.zeros_like(done)
+        if not bool(under.any()):
+            return stopped
+        at = torch.where(blown, t0, new.t)
+        for mask, code in (
+            (blown | (under & ~torch.isfinite(ratio)), Status.DIVERGED),
+            (new.still >= _STALL_CHECKS, Status.STALLED),
+            (new.stiff >= self._stiff_limit, Status.STIFF),
+            (under, Status.STEP_UNDERFLOW),
+        ):
+            mask = mask & ~stopped & ~done
+            rows.stop(mask, code, at, new.idx)
+            stopped = stopped | mask
+        return stopped
+
+    def _dense_output(self, run, y1, f1, mid, tt, counts, n_out, rows) -> tuple[Tensor, Tensor]:
+        """The ``n_out`` outputs of the steps from ``run`` to ``y1``: row ``a`` passed the
+        ``counts[a]`` output times from ``tt[run.nxt[a]]``, each ``Σ_v w_v(x) v`` at
+        ``x = (t_j − t) / h`` (:data:`_DENSE`; torchdiffeq's ``_interp_evaluate``).
+        Returns their indices ``j B + b`` into the ``(T B, D)`` output and the states
+        ``(n_out, D)``."""
+        dense = self._coefficients(y1.dtype, tt.dtype, y1.device)["dense"]
+        start = counts.cumsum(0) - counts
+        owner = torch.bincount(start, minlength=n_out + 1)[:n_out].cumsum(0) - 1
+        j = torch.arange(n_out, device=y1.device) + (run.nxt - start)[owner]
+        x = ((tt[j] - run.t[owner]) / run.h[owner]).to(y1.dtype)
+        powers = x[:, None].expand(n_out, 4).cumprod(1)[:, :, None]
+        w = dense[0] + (powers * dense[1:]).sum(1)
+        hy = run.h.to(y1.dtype)[:, None]
+        v = torch.stack([run.y, y1, mid, hy * run.f, hy * f1], -1)
+        return j * rows.alive.shape[0] + run.idx[owner], (v[owner] * w[:, None]).sum(-1)
 
     def _initial_step(self, func: Field, t0: Tensor, y0: Tensor, f0: Tensor) -> Tensor:
         """Hairer's starting step, per row: ``(B,)`` float64 from ``t0 (B,)``, ``y0``, ``f0``.
@@ -620,9 +680,39 @@ class Dopri5(_Solver):
             return torch.where(torch.isfinite(h) & (h > 0), h, 1e-6)
 
 
-def _scatter(mask: Tensor, idx: Tensor, B: int) -> Tensor:
-    """``(B,)`` bool: ``mask (A,)`` of the active rows ``idx (A,)`` placed among all rows."""
-    return torch.zeros(B, dtype=torch.bool, device=mask.device).index_put((idx,), mask)
+def _error_ratio(err, y, y1, rtol: float, atol: float, tdtype: torch.dtype) -> Tensor:
+    """``‖err / (atol + rtol max(|y|, |y1|))‖_rms`` per row, ``(A, D) -> (A,)`` in
+    ``tdtype``, NaN read as ``inf``: a step is accepted if it is ``<= 1``."""
+    tol = (atol + rtol * torch.maximum(y.abs(), y1.abs())).clamp_min(torch.finfo(y.dtype).tiny)
+    return _rms(err / tol).to(tdtype).nan_to_num(nan=math.inf)
+
+
+def _optimal_step(h: Tensor, ratio: Tensor) -> Tensor:
+    """The next step after an error ratio, ``h · clamp(0.9 ratio^(-1/5), 0.2, 10)``,
+    ``(A,)`` (torchdiffeq's ``_optimal_step_size``): a rejected step shrinks ``h``."""
+    return h * (0.9 * ratio.pow(-0.2)).clamp(0.2, 10.0)
+
+
+def _clip_to_end(t: Tensor, h: Tensor, t_end: Tensor) -> tuple[Tensor, Tensor]:
+    """``(h, last)``, ``(A,)`` each: a step that would end within ``1.01 h`` of
+    ``t_end`` or beyond it ends at ``t_end`` and is the row's ``last``."""
+    last = t + 1.01 * h >= t_end
+    return torch.where(last, t_end - t, h), last
+
+
+def _watch(run: _Active, y1, h_lambda, acc, limit, check: bool) -> tuple[Tensor, Tensor, Tensor]:
+    """``(blown, stiff, still)``, ``(A,)`` each, after the accepted steps ``acc`` from
+    ``run`` to ``y1``: ``blown``, ``y1`` non-finite (on a ``check`` step: ``|y1|∞``
+    beyond the row's ``limit (B,)``); on ``check`` steps, the runs of ``run.stiff``
+    (``h λ > 3.25``) and ``run.still`` (``|y1 − y| <= eps |y|`` with ``f ≠ 0``) grow
+    by an accepted step that has the property and restart at 0 on one that has not."""
+    if not check:
+        return acc & ~torch.isfinite(y1).all(-1), run.stiff, run.still
+    eps = torch.finfo(y1.dtype).eps
+    still = ((y1 - run.y).abs() <= eps * run.y.abs()).all(-1) & (run.f != 0).any(-1)
+    stiff = torch.where(acc, (run.stiff + 1) * (h_lambda > 3.25), run.stiff)
+    still = torch.where(acc, (run.still + 1) * still, run.still)
+    return acc & ~(y1.abs().amax(-1) <= limit[run.idx]), stiff, still
 
 
 def _rms(x: Tensor) -> Tensor:
@@ -687,6 +777,28 @@ def odeint(
             ``dopri5``, or a field whose output is not shaped like its input.
         RuntimeError: a row stopped (:class:`Status`) and ``return_status`` is false.
     """
+    solver, t = _prepare(method, y0, t, rtol, atol, step_size, options, blowup)
+    y = y0[None] if y0.ndim == 1 else y0
+    if t.shape[0] == 1:
+        B = y.shape[0]
+        sol = Solution(y[None], torch.zeros(B, dtype=torch.long), torch.full((B,), math.nan))
+    else:
+        field, times, sign = _increasing(func, t)
+        field = _checked(field)
+        integrate = partial(solver.integrate, field, t=times, blowup=blowup, sign=sign)
+        sol = _finite_rows(integrate, y, t.shape[0], float(t[0]))
+    if y0.ndim == 1:
+        sol = Solution(sol.y[:, 0], sol.status[0], sol.t_stop[0])
+    if return_status:
+        return sol
+    if not bool(sol.ok.all()):
+        raise RuntimeError(sol.describe(method))
+    return sol.y
+
+
+def _prepare(method, y0, t, rtol, atol, step_size, options, blowup) -> tuple[_Solver, Tensor]:
+    """The solver of :func:`odeint`'s checked arguments and ``t (T,)`` in ``y0``'s dtype
+    and device; ``None`` tolerances: :data:`DEFAULT_TOLERANCES` of ``y0``'s dtype."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; valid methods: {sorted(METHODS)}")
     if not (isinstance(y0, Tensor) and y0.is_floating_point() and y0.ndim in (1, 2)):
@@ -702,58 +814,43 @@ def odeint(
     if not blowup > 0:
         raise ValueError(f"blowup must be > 0, got {blowup}")
     solver = METHODS[method](rtol, atol, step_size, options)
-    solver.blowup = blowup
     t = torch.as_tensor(t).to(dtype=y0.dtype, device=y0.device)
     if t.ndim != 1 or t.shape[0] == 0:
         raise ValueError(f"t must be a non-empty 1-D tensor, got shape {tuple(t.shape)}")
     if not bool(torch.isfinite(t).all()):
         raise ValueError(f"t must be finite, got {t.tolist()[:8]}")
-    squeeze = y0.ndim == 1
-    y = y0[None] if squeeze else y0
-    if t.shape[0] == 1:
-        B = y.shape[0]
-        sol = Solution(y[None], torch.zeros(B, dtype=torch.long), torch.full((B,), math.nan))
-    else:
-        dt = t[1:] - t[:-1]
-        if bool((dt < 0).all()):
-            solver.sign = -1.0
-            field, times = _reversed(func), -t
-        elif bool((dt > 0).all()):
-            field, times = func, t
-        else:
-            raise ValueError("t must be strictly increasing or strictly decreasing")
-        sol = _finite_rows(solver, _checked(field), y, times, float(t[0]))
-    if squeeze:
-        sol = Solution(sol.y[:, 0], sol.status[0], sol.t_stop[0])
-    if return_status:
-        return sol
-    if not bool(sol.ok.all()):
-        raise RuntimeError(sol.describe(method))
-    return sol.y
+    return solver, t
 
 
-def _finite_rows(solver: _Solver, func: Field, y0: Tensor, t: Tensor, t0: float) -> Solution:
-    """``solver.integrate`` of the rows of ``y0 (B, D)`` that start finite; the others
-    stop at once with :attr:`Status.DIVERGED` at ``t0`` (their output: the start, then
-    NaN), whatever the field returns there (a tanh field is finite at ``inf``)."""
+def _increasing(func: Field, t: Tensor) -> tuple[Field, Tensor, float]:
+    """``(func, t, 1.0)`` for increasing ``t``; for decreasing ``t`` the substitution
+    ``s = -t``: ``(dy/ds = -func(-s, y), -t, -1.0)``."""
+    dt = t[1:] - t[:-1]
+    if bool((dt < 0).all()):
+        return (lambda s, y: -func(-s, y)), -t, -1.0
+    if bool((dt > 0).all()):
+        return func, t, 1.0
+    raise ValueError("t must be strictly increasing or strictly decreasing")
+
+
+def _finite_rows(integrate, y0: Tensor, n_times: int, t0: float) -> Solution:
+    """``integrate`` (a solver's, on all but ``y0``) of the rows of ``y0 (B, D)`` that
+    start finite; the others stop at once with :attr:`Status.DIVERGED` at ``t0`` (their
+    output: the start, then NaN), whatever the field returns there (a tanh field is
+    finite at ``inf``)."""
     finite = torch.isfinite(y0.detach()).all(-1)
     if bool(finite.all()):
-        return solver.integrate(func, y0, t)
+        return integrate(y0)
     B = y0.shape[0]
     status = torch.full((B,), int(Status.DIVERGED), dtype=torch.long, device=y0.device)
     t_stop = torch.full((B,), t0, dtype=torch.float64, device=y0.device)
-    y = torch.cat([y0[None], y0.new_full((t.shape[0] - 1, *y0.shape), math.nan)])
+    y = torch.cat([y0[None], y0.new_full((n_times - 1, *y0.shape), math.nan)])
     if bool(finite.any()):
-        sol = solver.integrate(func, y0[finite], t)
+        sol = integrate(y0[finite])
         rows = finite.nonzero().flatten()
-        y = _put_rows(y, rows, sol.y)
+        y = y.transpose(0, 1).index_put((rows,), sol.y.transpose(0, 1)).transpose(0, 1)
         status[rows], t_stop[rows] = sol.status, sol.t_stop
     return Solution(y, status, t_stop)
-
-
-def _put_rows(y: Tensor, rows: Tensor, values: Tensor) -> Tensor:
-    """``y (T, B, D)`` with the columns ``rows`` replaced by ``values (T, R, D)``."""
-    return y.transpose(0, 1).index_put((rows,), values.transpose(0, 1)).transpose(0, 1)
 
 
 #: the fixed-step methods :func:`odeint_windows` accepts
@@ -806,17 +903,17 @@ def odeint_windows(
     if method == "leapfrog":
         options = {"check_separable": False, **(options or {})}
     solver = METHODS[method](rtol, atol, None, options)
-    solver.rows = _Rows(y0, math.inf)
+    rows = _Rows(y0, math.inf)
     t = t.to(y0.dtype)
     cache = solver._start(func, t[:, :1], y0)
     y, ys = y0, [y0]
     for j, steps in enumerate(n):
         h = (t[:, j + 1 : j + 2] - t[:, j : j + 1]) / steps
         for k in range(steps):
-            y, cache = solver.step(func, t[:, j : j + 1] + k * h, y, h, cache)
+            y, cache = solver.step(func, t[:, j : j + 1] + k * h, y, h, cache, rows)
         ys.append(y)
-    if solver.rows.any_stopped:
-        raise RuntimeError(Solution(y0, solver.rows.status, solver.rows.t_stop).describe(method))
+    if rows.any_stopped:
+        raise RuntimeError(Solution(y0, rows.status, rows.t_stop).describe(method))
     return torch.stack(ys, 1)
 
 
@@ -839,13 +936,6 @@ def _checked(func: Field) -> Field:
         return out
 
     return checked
-
-
-def _reversed(func: Field) -> Field:
-    def neg(s: Tensor, y: Tensor) -> Tensor:
-        return -func(-s, y)
-
-    return neg
 
 
 def scipy_fun(
