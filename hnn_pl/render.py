@@ -62,6 +62,12 @@ crop, PIL bilinear, ``tests/data/gym_pendulum_frames.npz``): mean absolute
 difference 0.00048, max 0.020 over 701 angles ``|θ| ≤ 0.7`` (``k = 1`` box without
 the band, the old default: 0.0046, 0.28). Not modelled: the reference's 8-bit
 quantisation (±0.002; rounding changes the mean difference by < 1e-5).
+
+**Speed.** Frames are drawn in chunks of as many as keep each elementwise op under
+PyTorch's parallelisation grain (32 768 elements, 41 frames of 28 × 28), so each runs
+on one thread (3–10 × faster than 1024-frame batches on 2 busy cores), but at least 16
+(per-op overhead dominates below that: 16 frames at ``k = 4`` in float32 are 1.7 ×
+faster than 2).
 """
 
 from __future__ import annotations
@@ -129,40 +135,30 @@ def render_pendulum(
     """Gym Pendulum-v0 frames (reference preprocessing), ``(...,) -> (..., size, size)``:
     geometry, world → pixel map, anti-aliasing, the arrow band and how faithful the
     defaults are: see the module's docstring.
+
     Args:
         theta: angles (radians), any shape; a float tensor sets the dtype (else the
             default dtype); the device follows ``theta``.
-        size: frame side in pixels.
-        length: rod length (pivot to the centre of the tip's cap), world units.
-        width: rod width (capsule diameter), world units.
+        size: frame side in pixels; ``supersample``: ``k``, sub-pixels per side.
+        length, width: the rod (pivot to its tip cap's centre; capsule diameter), and
+            ``axle_radius`` the axle disc's (0: none), world units.
         intensity: a fully covered rod pixel (``R − G``: ``(204 − 76)/255``).
-        axle_radius: radius of the axle disc (0: none).
-        x_range: ``(x0, x1)``, world units, ``+x`` to the right.
-        y_range: ``(y0, y1)``, world units **below** the pivot.
-        supersample: ``k``, sub-pixels per pixel side.
+        x_range, y_range: the window ``(x0, x1)``, ``(y0, y1)``, world units, ``+x`` to
+            the right, ``y`` **below** the pivot.
         filter: ``"box"`` (pixel coverage) or ``"tent"`` (bilinear down-sampling).
         arrow: draw the torque arrow's band across the rod.
         ring: the band's ``(cx, cy, radius, width)``, world units.
-        chunk: frames per batch; default: as many as keep each elementwise op under
-            PyTorch's parallelisation grain (32 768 elements, 41 frames of 28 × 28), so
-            it runs on one thread (3–10 × faster than 1024-frame batches on 2 busy
-            cores), but at least 16 (per-op overhead dominates below that: 16 frames at
-            ``k = 4`` in float32 are 1.7 × faster than 2).
+        chunk: frames per batch (default: see **Speed** in the module's docstring).
 
-    Returns:
-        ``(..., size, size)``, values in ``[0, intensity]``.
+    Returns ``(..., size, size)``, values in ``[0, intensity]``.
     """
-    if filter not in _FILTERS:
-        raise ValueError(f"filter must be one of {_FILTERS}, got {filter!r}")
-    if supersample < 1 or size < 1:
-        raise ValueError("size and supersample must be >= 1")
+    if filter not in _FILTERS or supersample < 1 or size < 1:
+        raise ValueError(f"filter must be in {_FILTERS}, size and supersample >= 1")
     theta = torch.as_tensor(theta)
-    dtype = theta.dtype if theta.is_floating_point() else torch.get_default_dtype()
-    theta = theta.to(dtype)
-    k, fine = supersample, size * supersample
+    theta = theta.to(theta.dtype if theta.is_floating_point() else torch.get_default_dtype())
+    dtype, k, fine = theta.dtype, supersample, size * supersample
     xs, ys, h = _grid(fine, x_range, y_range, dtype, theta.device)
-    # the fine-grid ramp is box-shaped; a tent is then applied when shrinking by k
-    ramp = filter if k == 1 else "box"
+    ramp = filter if k == 1 else "box"  # with k > 1 the tent comes when shrinking by k
     axle = _axle(xs, ys, h, axle_radius, ramp, intensity)
     band = 1 - _coverage(_ring_distance(xs, ys, ring).div_(h), ramp) if arrow else None
     tent = _tent_matrix(size, k, dtype, theta.device) if k > 1 and filter == "tent" else None
@@ -172,16 +168,13 @@ def render_pendulum(
     for start in range(0, flat.numel(), chunk):
         th = flat[start : start + chunk].view(-1, 1, 1)
         img = _coverage(_rod_distance(th, xs, ys, length, width / 2).div_(h), ramp, intensity)
-        if band is not None:
-            img.mul_(band)
+        img = img if band is None else img.mul_(band)
         if axle is not None:
             (rows, cols), disc = axle
             img[..., rows, cols] = (img[..., rows, cols] - disc).clamp_(min=0.0)
-        if k > 1:
-            img = (
-                img.view(-1, size, k, size, k).mean((2, 4)) if tent is None else tent @ img @ tent.T
-            )
-        frames[start : start + chunk] = img
+        if k > 1 and tent is None:
+            img = img.view(-1, size, k, size, k).mean((2, 4))
+        frames[start : start + chunk] = img if tent is None else tent @ img @ tent.T
     return frames.reshape(*theta.shape, size, size)
 
 
