@@ -260,6 +260,7 @@ def cli_runs(request, tmp_path_factory):
     pool.shutdown(cancel_futures=True)
 
 
+@pytest.mark.xdist_group("cli-failures")  # one worker runs cli_runs for all of them
 @pytest.mark.parametrize("case", list(CASES))
 def test_every_cli_failure_is_one_line_and_leaves_nothing(case, cli_runs):
     code, stderr, new = cli_runs[case].result()
@@ -531,6 +532,7 @@ def test_killing_reproduce_leaves_no_worker_or_resource_tracker(tmp_path):
     assert _wait_for(lambda: not any(Path(f"/proc/{c}").exists() for c in children), 30)
 
 
+@pytest.mark.slow
 @linux_only
 def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
     proc = _reproduce(tmp_path)
