@@ -1,11 +1,13 @@
 """Shared fixtures: a private data cache; one thread (the tests's tensors are small, and
 a second thread only adds contention).
 
-The suite runs on two pytest-xdist workers (``-n 2 --dist loadgroup``, pyproject's
-``addopts``); each worker is one process with one torch thread. Tests that share an
-expensive module-scoped fixture carry ``pytest.mark.xdist_group`` so that fixture is
-built once, on one worker. ``slow`` tests are handed out first, so no long test starts
-last while the other worker idles."""
+The suite runs on two pytest-xdist workers (``-n 2 --dist loadfile``, pyproject's
+``addopts``), each one process with one torch thread. A file's tests run on one worker,
+so a module-scoped fixture (a fit, a report) is built once. Files are handed out in
+collection order, the files of ``slow`` tests first, so no long test starts last while
+the other worker idles. (``--dist loadgroup`` and ``xdist_group`` marks do not group
+under pytest 9.2 with pytest-xdist 3.8.0: the group suffix xdist writes to
+``item._nodeid`` is not the node id pytest 9.2 reads.)"""
 
 from __future__ import annotations
 

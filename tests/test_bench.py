@@ -15,7 +15,6 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.xdist_group("bench")  # one --quick run, on one xdist worker
 SECTIONS = ("machine", "integrators", "training", "data", "startup", "tta", "threads")
 SECTIONS += ("symplectic", "independent", "trajectory")
 SEEDED = """# hnn_pl benchmarks

@@ -260,7 +260,6 @@ def cli_runs(request, tmp_path_factory):
     pool.shutdown(cancel_futures=True)
 
 
-@pytest.mark.xdist_group("cli-failures")  # one worker runs cli_runs for all of them
 @pytest.mark.parametrize("case", list(CASES))
 def test_every_cli_failure_is_one_line_and_leaves_nothing(case, cli_runs):
     code, stderr, new = cli_runs[case].result()

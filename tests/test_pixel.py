@@ -266,13 +266,7 @@ def _args(tmp_path: Path) -> list[str]:
     ]
 
 
-#: each config's tests on one xdist worker, which fits it once
-_FIT_ONCE = [
-    pytest.param(c, marks=pytest.mark.xdist_group(c)) for c in ("pixel.yaml", "pixel_baseline.yaml")
-]
-
-
-@pytest.fixture(scope="module", params=_FIT_ONCE)
+@pytest.fixture(scope="module", params=["pixel.yaml", "pixel_baseline.yaml"])
 def fitted(request, tmp_path_factory):
     """A 4-step fit (2 epochs of 2 batches) of a bundled pixel config on tiny data."""
     tmp_path = tmp_path_factory.mktemp(request.param.split(".")[0])

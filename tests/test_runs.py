@@ -125,14 +125,7 @@ def _common(tmp_path: Path) -> list[str]:
     ]
 
 
-#: each config's tests on one xdist worker, which fits it once
-_FIT_ONCE = [
-    pytest.param(c, marks=pytest.mark.xdist_group(c))
-    for c in ("spring.yaml", "spring_baseline.yaml")
-]
-
-
-@pytest.fixture(scope="module", params=_FIT_ONCE)
+@pytest.fixture(scope="module", params=["spring.yaml", "spring_baseline.yaml"])
 def run(request, tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp(request.param.split(".")[0])
     cli = cli_main(["fit", "--config", request.param, "--trainer.max_steps=4", *_common(tmp_path)])
