@@ -225,10 +225,10 @@ def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(c
 
 
 @pytest.mark.parametrize("config", [c for c in CONFIGS if not c.startswith("pixel")])
-def test_every_state_config_fits_three_steps(config, tmp_path, tmp_path_factory):
+def test_every_state_config_fits_three_steps(config, tmp_path, data_cache):
     """Three steps of each state config: it trains, validates and rolls out under its
     run name and model class. The configs of a task share their data: one cache."""
-    cache = tmp_path_factory.getbasetemp() / "cache"
+    cache = data_cache
     extra = ["--model.init_args.inner_steps=1", f"--data.init_args.cache_dir={cache}"]
     cli = _fit(config, tmp_path, steps=3, extra=extra)
     assert cli.trainer.global_step == 3

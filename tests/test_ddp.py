@@ -210,6 +210,7 @@ def run_cases(out_dir: Path, devices: int) -> None:
         )
 
 
+@pytest.mark.slow
 def test_two_process_ddp_fit_equals_one_process_fit(tmp_path):
     run_cases(tmp_path, devices=1)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}

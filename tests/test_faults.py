@@ -531,6 +531,7 @@ def test_killing_reproduce_leaves_no_worker_or_resource_tracker(tmp_path):
     assert _wait_for(lambda: not any(Path(f"/proc/{c}").exists() for c in children), 30)
 
 
+@pytest.mark.slow
 @linux_only
 def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
     proc = _reproduce(tmp_path)

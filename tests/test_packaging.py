@@ -66,6 +66,7 @@ def _fresh_venv(tmp: Path, wheel: Path) -> Path:
     return venv
 
 
+@pytest.mark.slow
 def test_wheel_ships_configs_and_runs_from_anywhere(tmp_path):
     had_build = (REPO / "build").exists()
     wheel = _build_wheel(tmp_path)

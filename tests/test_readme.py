@@ -79,6 +79,7 @@ def test_the_blocks_are_the_ones_a_reader_follows():
         assert "python -m hnn_pl" not in line, line
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     not (Path(sys.prefix) / "bin" / "activate").is_file(), reason="needs a venv as .venv"
 )

@@ -18,6 +18,7 @@ def _run(tmp_path, monkeypatch, extra=()):
     return reproduce.main(argv)
 
 
+@pytest.mark.slow
 def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch, capfd):
     assert _run(tmp_path, monkeypatch) == 0
     # one line as each run starts, one as it ends with the time left; no Lightning chatter
@@ -99,6 +100,7 @@ def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
     ], "the first call's runs were all redone, so it no longer appears"
 
 
+@pytest.mark.slow
 def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     argv = ["--tasks", "pixel", "--seeds", "1", "--workers", "0", "--max-steps", "2"]
@@ -123,6 +125,7 @@ def test_tiny_pixel_reproduction_reports_pixel_metrics(tmp_path, monkeypatch):
     assert math.isfinite(own) and own != by["baseline"]["reference"]["energy_mse"]
 
 
+@pytest.mark.slow
 def test_fast_recipe_records_time_to_accuracy(tmp_path, monkeypatch):
     """``--recipe fast`` runs the fast configs; each run records whether and when its
     energy MSE on the paper's protocol reached the published HNN value (``tta``)."""

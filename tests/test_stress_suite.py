@@ -24,6 +24,7 @@ def _rows(text: str, first: str) -> list[list[str]]:
     ]
 
 
+@pytest.mark.slow
 def test_the_report_has_every_section_and_its_figures(report):
     text = report.read_text()
     for heading in ("## 1. Long runs", "## 2. Trained models", "## 3. Hard cases", "## 4. float32"):

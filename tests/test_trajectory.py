@@ -185,6 +185,7 @@ def _fit(model, dm, steps):
     return trainer
 
 
+@pytest.mark.slow
 def test_states_only_spring_fit_learns_the_dynamics():
     """The paper's noisy spring states (σ = 0.1), derivatives withheld, 150 steps: the
     trajectory objective's HNN against the same HNN regressed on central differences

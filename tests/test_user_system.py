@@ -30,6 +30,7 @@ def test_the_vector_field_is_J_grad_H_by_autograd(double_well):
         torch.testing.assert_close(double_well().vector_field(None, y), expected)
 
 
+@pytest.mark.slow
 def test_a_system_from_h_alone_trains_and_the_hnn_beats_its_baseline(double_well, tmp_path):
     energy = {}
     for name in ("hnn", "baseline"):
