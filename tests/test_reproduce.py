@@ -61,16 +61,16 @@ def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch, capfd
 
 
 def test_a_failed_run_keeps_the_others(tmp_path, monkeypatch):
-    import hnn_pl.evaluate as ev
+    import hnn_pl.evaluation as ev
 
-    real = ev.evaluate
+    real = ev.evaluate_task
 
-    def flaky(field, dm, task):
+    def flaky(task, model, dm, *args, **kwargs):
         if task == "real_pendulum":
             raise RuntimeError("boom")
-        return real(field, dm, task)
+        return real(task, model, dm, *args, **kwargs)
 
-    monkeypatch.setattr(ev, "evaluate", flaky)
+    monkeypatch.setattr(ev, "evaluate_task", flaky)
     assert _run(tmp_path, monkeypatch) == 1
     data = json.loads((tmp_path / "R.json").read_text())
     assert sum("error" in r for r in data["runs"]) == 2
