@@ -62,10 +62,10 @@ def run(quick: bool = False, recipes=("fast", "paper"), thread_counts=(1, 2)) ->
         paper = tasks.get(task).paper_motion
         target += f" / {paper.state_mse:.3g}" if paper else " / —"
         for recipe in recipes:
-            seeds = 2 if quick else (10 if recipe == "fast" else 3)
+            seeds = 1 if quick else (10 if recipe == "fast" else 3)
             if recipe == "paper" and task not in REFERENCE_S and not quick:
                 continue  # no reference time to compare with; 10000 steps of 600 rows
-            for threads in thread_counts if recipe == "fast" else (1,):
+            for threads in thread_counts[: 1 if quick else None] if recipe == "fast" else (1,):
                 runs = [
                     fit_until(task, recipe, s, threads, max_steps=20 if quick else None)
                     for s in range(seeds)
