@@ -111,6 +111,11 @@ class Protocol(_Fields):
         return lambda model: self.run(model, dm, floors=False)
 
 
+#: scipy's default ``atol``, which sets a reference protocol's accuracy when it leaves
+#: ``atol`` unset (quirk 5)
+SCIPY_ATOL = 1e-6
+
+
 @dataclass(frozen=True)
 class ReferenceProtocol(_Fields):
     """The published energy-MSE procedure of one state task, quirks as named options.
@@ -149,7 +154,11 @@ class ReferenceProtocol(_Fields):
 
     def solver_kwargs(self) -> dict[str, Any]:
         """dopri5 at ``rtol`` and ``atol`` (scipy's 1e-6 where unset), for given starts."""
-        return {"method": "dopri5", "rtol": self.rtol, "atol": self.atol or 1e-6}
+        return {
+            "method": "dopri5",
+            "rtol": self.rtol,
+            "atol": SCIPY_ATOL if self.atol is None else self.atol,
+        }
 
     def run(self, model: Any, dm: Any, solver: str = "scipy") -> Rollout:
         """The published procedure on ``dm``'s system (see :meth:`ReferenceCase.run

@@ -76,7 +76,7 @@ class ReferenceCase:
         p, f = self.protocol, in_dtype(getattr(model, "field", model), torch.float64).vector_field
         status = None
         if solver == "torch":
-            y_pred, status = self._torch(f, 1e-6 if p.atol is None else p.atol)
+            y_pred, status = self._torch(f, p.solver_kwargs()["atol"])
         elif solver == "scipy":
             y_pred = _scipy_rollout(f, self.y0, self.t, p, self.stretch)
         else:
