@@ -18,17 +18,21 @@ training seconds, median over seeds, all objectives on the same axes
 Cost: one trajectory step against what its field evaluations predict (step time ÷
 (field calls per step × one field call, forward and backward, on the same rows)),
 and Lightning's overhead (``fit`` against a bare loop of the same steps).
-``HNN_PL_TRAJ_TASKS=spring`` limits the accuracy part to the spring.
+``HNN_PL_TRAJ_TASKS=spring`` limits the accuracy part to the spring;
+``HNN_PL_TRAJ_JOBS=2`` runs the accuracy part's seeds two at a time (1 thread each; the
+cost part always runs alone).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import statistics
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import torch
@@ -45,6 +49,8 @@ ROOT = Path(__file__).resolve().parents[1]
 FIGURE = ROOT / "docs" / "traj_tta.png"
 #: the tasks measured (``HNN_PL_TRAJ_TASKS`` overrides: the machine's budget)
 TASKS = tuple(os.environ.get("HNN_PL_TRAJ_TASKS", "spring,pendulum").split(","))
+#: processes for the accuracy part (``HNN_PL_TRAJ_JOBS``)
+JOBS = int(os.environ.get("HNN_PL_TRAJ_JOBS", "1"))
 #: field evaluations per step of each window method (implicit midpoint: its typical
 #: fixed-point iterations are data-dependent, so it is not in the cost table)
 EVALS = {"euler": 1, "rk4": 4, "leapfrog": 2}
@@ -81,26 +87,35 @@ def accuracy(quick: bool) -> tuple[str, dict]:
     task_list = ("spring",) if quick else TASKS
     out = (Path(tempfile.mkdtemp()) if quick else ROOT) / "RESULTS_traj.md"
     argv = ["--recipe", "traj", "--tasks", *task_list, "--models", "hnn", "--seeds", str(n)]
-    argv += ["--workers", "0", "--out", str(out)] + (["--max-steps", "20"] if quick else [])
+    workers = "0" if JOBS == 1 else str(JOBS)
+    argv += ["--workers", workers, "--out", str(out)] + (["--max-steps", "20"] if quick else [])
     reproduce.main(argv)
     records = json.loads(out.with_suffix(".json").read_text())["runs"]
     runs = {}
-    for task in task_list:
-        runs[task, "exact derivatives (fast recipe)"] = [
-            fit(task, s, quick, False) for s in range(n)
-        ]
-        runs[task, "central differences (fast recipe)"] = [
-            fit(task, s, quick, True) for s in range(n)
-        ]
-        runs[task, "states only (traj recipe)"] = [
-            r for r in records if r["task"] == task and "error" not in r
-        ]
-        if task == "spring" and not quick:
-            half = ("--data.init_args.keep_fraction=0.5",)
-            steps = 20 if quick else None
-            runs[task, "half the samples (traj recipe)"] = [
-                reproduce.run_one(task, "hnn", s, steps, "traj", half) for s in range(n)
+    with ProcessPoolExecutor(JOBS) if JOBS > 1 else contextlib.nullcontext() as pool:
+        pmap = pool.map if pool else map
+        for task in task_list:
+            seeds = range(n)
+            exact = pmap(fit, [task] * n, seeds, [quick] * n, [False] * n)
+            central = pmap(fit, [task] * n, seeds, [quick] * n, [True] * n)
+            runs[task, "exact derivatives (fast recipe)"] = list(exact)
+            runs[task, "central differences (fast recipe)"] = list(central)
+            runs[task, "states only (traj recipe)"] = [
+                r for r in records if r["task"] == task and "error" not in r
             ]
+            if task == "spring" and not quick:
+                half = [("--data.init_args.keep_fraction=0.5",)] * n
+                runs[task, "half the samples (traj recipe)"] = list(
+                    pmap(
+                        reproduce.run_one,
+                        [task] * n,
+                        ["hnn"] * n,
+                        seeds,
+                        [None] * n,
+                        ["traj"] * n,
+                        half,
+                    )
+                )
     rows = []
     for (task, name), rs in runs.items():
         ind = [r["independent"]["energy_mse"] for r in rs]

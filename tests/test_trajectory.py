@@ -42,13 +42,13 @@ def _rk4_matrix(A, h):
     return P
 
 
-@pytest.mark.parametrize("learned", ["none", "sample"])
-def test_window_loss_equals_hand_computed_on_linear_field(learned):
+@pytest.mark.parametrize("learned, continuity", [("none", 0), ("sample", 0), ("sample", 0.3)])
+def test_window_loss_equals_hand_computed_on_linear_field(learned, continuity):
     torch.manual_seed(0)
     y, t, index = _windows()
     model = LinearModel(objective="trajectory", substeps=2, learned_states=learned)
     model = model.double()
-    model.state_weight = 0.7
+    model.state_weight, model.continuity_weight = 0.7, continuity
     obs = y.reshape(-1, 2) + 0.01
     model.init_states(obs, t.reshape(-1), torch.arange(len(obs)) // 4)
     A = model.field.net.weight.detach()
@@ -60,11 +60,17 @@ def test_window_loss_equals_hand_computed_on_linear_field(learned):
             step = _rk4_matrix(A, float(t[b, k] - t[b, k - 1]) / 2)
             state = step @ step @ state
             loss += float(((state - y[b, k]) ** 2).sum())
+            loss += continuity * float(((state - obs[index[b, k]]) ** 2).sum())
         if learned == "sample":
             loss += 0.7 * float(((z0 - y[b, 0]) ** 2).sum()) * (y.shape[1] - 1)
     loss /= y.shape[0] * (y.shape[1] - 1) * y.shape[2]
     got = model.training_loss((y, t, index))["loss"]
     assert math.isclose(float(got.detach()), loss, rel_tol=1e-12)
+
+
+def test_continuity_needs_per_sample_states():
+    with pytest.raises(ValueError, match="continuity_weight .* only with learned_states: sample"):
+        HNN(objective="trajectory", learned_states="trajectory", continuity_weight=1.0)
 
 
 class _Loss(nn.Module):

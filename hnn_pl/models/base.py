@@ -35,7 +35,8 @@ class DynamicsModel(RecipeModel):
     (:func:`~hnn_pl.integrate.odeint_windows`: ``traj_method``, ``substeps`` equal
     steps of each row's own size between samples, so uneven spacing is exact), and
 
-    ``loss = mean_{b, k≥1, d} (ŷ_k − y_k)² + state_weight · mean_{b, d} (ŷ_0 − y_0)²``.
+    ``loss = mean_{b, k≥1, d} (ŷ_k − y_k)² + state_weight · mean_{b, d} (ŷ_0 − y_0)²
+    + continuity_weight · mean_{b, k≥1, d} (ŷ_k − s_k)²``.
 
     ``ŷ_0`` is the observed ``y_0`` (``learned_states="none"``; the second term is 0),
     a learned denoised state per observed sample (``"sample"``: a parameter
@@ -43,7 +44,10 @@ class DynamicsModel(RecipeModel):
     its first sample, integrated to the window's start in the same call
     (``"trajectory"``: ``(M, 2k)``; SRNN's initial-state optimisation). The learned
     states are sized from the DataModule at ``setup`` (:meth:`init_states`), carry
-    no weight decay and are saved in checkpoints. ``val/loss`` and ``test/loss``:
+    no weight decay and are saved in checkpoints. The last term (``"sample"`` only)
+    ties the learned states ``s_k`` of a window's later samples to the integration from
+    its first: multiple shooting, so that the information of a whole trajectory reaches
+    every state and the field through windows of a few samples. ``val/loss`` and ``test/loss``:
     the first term on held-out windows from their observed starts.
 
     Args:
@@ -57,6 +61,8 @@ class DynamicsModel(RecipeModel):
         substeps: integration steps between consecutive samples.
         learned_states: ``"none"``, ``"sample"`` or ``"trajectory"``.
         state_weight: weight of the learned states' fit to the observations.
+        continuity_weight: weight of the integration's fit to the learned states of
+            the window's later samples (``learned_states="sample"``; 0: off).
         lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip,
             on_nonfinite: the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`;
             the paper's: Adam, constant rate).
@@ -81,6 +87,7 @@ class DynamicsModel(RecipeModel):
         substeps: int = 1,
         learned_states: str = "none",
         state_weight: float = 1.0,
+        continuity_weight: float = 0.0,
     ) -> None:
         from hnn_pl.integrate import WINDOW_METHODS
 
@@ -103,12 +110,18 @@ class DynamicsModel(RecipeModel):
                 f"learned_states must be one of {LEARNED_STATES}: {learned_states!r}",
             ),
             (state_weight >= 0, f"state_weight must be >= 0: {state_weight}"),
+            (
+                continuity_weight >= 0 and (not continuity_weight or learned_states == "sample"),
+                f"continuity_weight must be >= 0, and > 0 only with learned_states: sample: "
+                f"{continuity_weight} with {learned_states!r}",
+            ),
         ]:
             if not ok:
                 raise ValueError(message)
         self.save_hyperparameters()
         self.objective, self.traj_method, self.substeps = objective, traj_method, substeps
         self.learned_states, self.state_weight = learned_states, state_weight
+        self.continuity_weight = continuity_weight
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
         self.register_parameter("states", None)
         self.register_buffer("traj_first", None, persistent=False)
@@ -204,7 +217,8 @@ class DynamicsModel(RecipeModel):
 
     def window_loss(self, batch: tuple[Tensor, Tensor, Tensor]) -> dict[str, Tensor]:
         """The trajectory objective of one window batch (class docstring): ``{"loss",
-        "fit"}`` and, with learned states, ``"anchor"`` (their fit to the observations)."""
+        "fit"}`` and, with learned states, ``"anchor"`` (their fit to the observations)
+        and ``"continuity"`` (with ``continuity_weight``)."""
         y, t, index = batch
         if self.states is None and self.learned_states != "none":
             raise RuntimeError(
@@ -229,7 +243,11 @@ class DynamicsModel(RecipeModel):
         if self.states is None:
             return {"loss": fit}
         anchor = nn.functional.mse_loss(pred[:, 0], y[:, 0])
-        return {"loss": fit + self.state_weight * anchor, "fit": fit, "anchor": anchor}
+        out = {"loss": fit + self.state_weight * anchor, "fit": fit, "anchor": anchor}
+        if self.continuity_weight:
+            out["continuity"] = nn.functional.mse_loss(pred[:, 1:], self.states[index[:, 1:]])
+            out["loss"] = out["loss"] + self.continuity_weight * out["continuity"]
+        return out
 
     def training_loss(self, batch: tuple[Tensor, ...]) -> dict[str, Tensor]:
         batch = self._batch(batch)
