@@ -5,8 +5,10 @@ checkpoint is data; non-finite states get a status; writes are whole."""
 from __future__ import annotations
 
 import errno
+import json
 import math
 import os
+import queue
 import re
 import signal
 import subprocess
@@ -227,37 +229,68 @@ CASES = {
 }
 
 
-def _run_case(case: str, tmp: Path) -> tuple[int, str, set[Path]]:
-    """Run ``python -m hnn_pl`` for ``case`` in ``tmp``: exit status, stderr, and the
-    files it left that were not there before."""
+class _Forks:
+    """One ``tests/cli_forks.py`` interpreter: ``python -m hnn_pl`` cases in forked
+    children of a process that imported the package once (each case still its own
+    process: its exit status, its stderr, its working directory and environment)."""
+
+    def __init__(self) -> None:
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        self.proc = subprocess.Popen(
+            [sys.executable, str(ROOT / "tests" / "cli_forks.py")],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+            text=True,
+        )
+
+    def run(self, argv: list[str], cwd: Path, env: dict, unset: list[str], out: Path):
+        request = {"argv": argv, "cwd": str(cwd), "env": env, "unset": unset}
+        request |= {"stdout": str(out / "stdout"), "stderr": str(out / "stderr")}
+        self.proc.stdin.write(json.dumps(request) + "\n")
+        self.proc.stdin.flush()
+        code = json.loads(self.proc.stdout.readline())["code"]
+        return code, (out / "stderr").read_text()
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+def _run_case(case: str, tmp: Path, forks: queue.Queue) -> tuple[int, str, set[Path]]:
+    """``python -m hnn_pl`` for ``case`` in ``tmp`` (through a free :class:`_Forks`):
+    exit status, stderr, and the files it left that were not there before."""
     argv, files, _ = CASES[case]
-    _files(files, tmp)
-    before = set(tmp.rglob("*"))
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "HNN_PL_CACHE": str(tmp / "cache")}
-    env.pop("HNN_PL_TRACEBACK", None)
-    proc = subprocess.run(
-        [sys.executable, "-m", "hnn_pl", *argv],
-        cwd=tmp,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    return proc.returncode, proc.stderr, set(tmp.rglob("*")) - before
+    (tmp / "cwd").mkdir()
+    _files(files, tmp / "cwd")
+    before = set((tmp / "cwd").rglob("*"))
+    env = {"PYTHONPATH": str(ROOT), "HNN_PL_CACHE": str(tmp / "cwd" / "cache")}
+    server = forks.get()
+    try:
+        code, stderr = server.run(argv, tmp / "cwd", env, ["HNN_PL_TRACEBACK"], tmp)
+    finally:
+        forks.put(server)
+    return code, stderr, set((tmp / "cwd").rglob("*")) - before
 
 
 @pytest.fixture(scope="module")
 def cli_runs(request, tmp_path_factory):
-    """The selected cases, run two at a time (each is its own interpreter)."""
+    """The selected cases, two at a time (two fork servers)."""
     selected = [
         item.callspec.params["case"]
         for item in request.session.items
         if item.originalname == "test_every_cli_failure_is_one_line_and_leaves_nothing"
     ]
+    forks: queue.Queue = queue.Queue()
+    servers = [_Forks() for _ in range(2)]
+    for server in servers:
+        forks.put(server)
     pool = ThreadPoolExecutor(2)
-    runs = {c: pool.submit(_run_case, c, tmp_path_factory.mktemp(c)) for c in selected}
+    runs = {c: pool.submit(_run_case, c, tmp_path_factory.mktemp(c), forks) for c in selected}
     yield runs
     pool.shutdown(cancel_futures=True)
+    for server in servers:
+        server.close()
 
 
 @pytest.mark.parametrize("case", list(CASES))
