@@ -60,13 +60,13 @@ def run(quick: bool = False) -> str:
         horizon = 10 * clean.t_end / (10 if quick else 1)
         t = torch.linspace(0, horizon, 10 * clean.n_points + 1, dtype=torch.float64)
         points = {"dopri5": [], "implicit_midpoint": []}
-        for tol in DOPRI:
+        for tol in DOPRI[1:2] if quick else DOPRI:
             s, e, d = score(model, dm, y0, t, "dopri5", rtol=tol, atol=tol)
             points["dopri5"].append((s, e, d))
             rows.append(
                 [task, "dopri5", f"rtol = atol = {tol:.0e}", f"{s:.3f}", f"{e:.2e}", f"{d:.2e}"]
             )
-        for h in STEPS[task]:
+        for h in STEPS[task][:1] if quick else STEPS[task]:
             s, e, d = score(model, dm, y0, t, "implicit_midpoint", step_size=h)
             points["implicit_midpoint"].append((s, e, d))
             rows.append(
@@ -77,7 +77,7 @@ def run(quick: bool = False) -> str:
             for k in (0, 1):
                 rivals = [p[1 + k] for p in points["dopri5"] if p[0] <= s_im]
                 wins[k] += not rivals or err_im[k] < MARGIN * min(rivals)
-        n = len(STEPS[task])
+        n = len(points["implicit_midpoint"])
         verdicts.append([task, f"{horizon:g}", f"{wins[0]}/{n}", f"{wins[1]}/{n}"])
         print(rows[-1], verdicts[-1], flush=True)
     head = "task | method | setting | seconds | true-energy MSE | learned-H drift"

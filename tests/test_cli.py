@@ -224,12 +224,32 @@ def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(c
     assert twin == hnn
 
 
+@pytest.fixture
+def short_rollouts(monkeypatch):
+    """The callbacks' protocols over their first 5 held-out starts and a tenth of the
+    horizon: the same code, a small part of its work (the protocols' numbers are tested
+    elsewhere; here every config must run)."""
+    import hnn_pl.callbacks
+
+    real = hnn_pl.callbacks.task_protocol
+
+    def short(task, name="clean", overrides=None):
+        p = real(task, name, overrides)
+        if p.t_end is None or not hasattr(p, "max_starts"):
+            return p
+        return p.replace(max_starts=5, t_end=p.t_end / 10, n_points=max(2, p.n_points // 10))
+
+    monkeypatch.setattr(hnn_pl.callbacks, "task_protocol", short)
+
+
 @pytest.mark.parametrize("config", [c for c in CONFIGS if not c.startswith("pixel")])
-def test_every_state_config_fits_three_steps(config, tmp_path, data_cache):
+def test_every_state_config_fits_three_steps(config, tmp_path, data_cache, short_rollouts):
     """Three steps of each state config: it trains, validates and rolls out under its
-    run name and model class. The configs of a task share their data: one cache."""
+    run name and model class (a short rollout: ``short_rollouts``). The configs of a
+    task share their data: one cache."""
     cache = data_cache
     extra = ["--model.init_args.inner_steps=1", f"--data.init_args.cache_dir={cache}"]
+    extra += ["--trainer.limit_val_batches=2"]
     cli = _fit(config, tmp_path, steps=3, extra=extra)
     assert cli.trainer.global_step == 3
     assert type(cli.model).__name__ == _model_class(config)
