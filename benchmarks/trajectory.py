@@ -18,9 +18,15 @@ training seconds, median over seeds, all objectives on the same axes
 Cost: one trajectory step against what its field evaluations predict (step time ÷
 (field calls per step × one field call, forward and backward, on the same rows)),
 and Lightning's overhead (``fit`` against a bare loop of the same steps).
+Recording: the measured pendulum (one recording, ten initialisations), the HNN and the
+dissipative HNN learning from the paper's forward differences, from central differences
+and from the recorded states alone; clean-protocol energy MSE and the rollout's energy
+slope against the held-out segment's own (−1.07 % per second).
+
 ``HNN_PL_TRAJ_TASKS=spring`` limits the accuracy part to the spring;
-``HNN_PL_TRAJ_JOBS=2`` runs the accuracy part's seeds two at a time (1 thread each; the
-cost part always runs alone).
+``HNN_PL_TRAJ_PARTS=recording,cost`` runs only those parts; ``HNN_PL_TRAJ_JOBS=2`` runs
+the accuracy and recording parts' seeds two at a time (1 thread each; the cost part
+always runs alone).
 """
 
 from __future__ import annotations
@@ -49,7 +55,9 @@ ROOT = Path(__file__).resolve().parents[1]
 FIGURE = ROOT / "docs" / "traj_tta.png"
 #: the tasks measured (``HNN_PL_TRAJ_TASKS`` overrides: the machine's budget)
 TASKS = tuple(os.environ.get("HNN_PL_TRAJ_TASKS", "spring,pendulum").split(","))
-#: processes for the accuracy part (``HNN_PL_TRAJ_JOBS``)
+#: the parts run (``HNN_PL_TRAJ_PARTS``, comma-separated)
+PARTS = tuple(os.environ.get("HNN_PL_TRAJ_PARTS", "accuracy,recording,cost").split(","))
+#: processes for the accuracy and recording parts (``HNN_PL_TRAJ_JOBS``)
 JOBS = int(os.environ.get("HNN_PL_TRAJ_JOBS", "1"))
 #: field evaluations per step of each window method (implicit midpoint: its typical
 #: fixed-point iterations are data-dependent, so it is not in the cost table)
@@ -85,12 +93,7 @@ def accuracy(quick: bool) -> tuple[str, dict]:
     (``RESULTS_traj.md``)."""
     n = 1 if quick else 10
     task_list = ("spring",) if quick else TASKS
-    out = (Path(tempfile.mkdtemp()) if quick else ROOT) / "RESULTS_traj.md"
-    argv = ["--recipe", "traj", "--tasks", *task_list, "--models", "hnn", "--seeds", str(n)]
-    workers = "0" if JOBS == 1 else str(JOBS)
-    argv += ["--workers", workers, "--out", str(out)] + (["--max-steps", "20"] if quick else [])
-    reproduce.main(argv)
-    records = json.loads(out.with_suffix(".json").read_text())["runs"]
+    records = _traj_runs(task_list, ["hnn"], n, quick)
     runs = {}
     with ProcessPoolExecutor(JOBS) if JOBS > 1 else contextlib.nullcontext() as pool:
         pmap = pool.map if pool else map
@@ -101,7 +104,7 @@ def accuracy(quick: bool) -> tuple[str, dict]:
             runs[task, "exact derivatives (fast recipe)"] = list(exact)
             runs[task, "central differences (fast recipe)"] = list(central)
             runs[task, "states only (traj recipe)"] = [
-                r for r in records if r["task"] == task and "error" not in r
+                r for r in records if r["task"] == task and r["model"] == "hnn"
             ]
             if task == "spring" and not quick:
                 half = [("--data.init_args.keep_fraction=0.5",)] * n
@@ -131,6 +134,72 @@ def accuracy(quick: bool) -> tuple[str, dict]:
         "| clean-protocol energy MSE | train s (median) | true-energy MSE per seed"
     )
     return table(head, rows), runs
+
+
+#: the measured pendulum's models and what they learn from: (name, recipe, overrides);
+#: the trajectory recipe's runs come from ``reproduce`` (``RESULTS_traj.md``)
+RECORDING_MODELS = {"baseline": "baseline", "hnn": "HNN", "dissipative": "dissipative HNN"}
+DIFFERENCES = (
+    ("forward differences (the paper's targets; fast recipe)", "fast", ()),
+    ("central differences (fast recipe)", "fast", ("--data.init_args.differences=central",)),
+)
+
+
+def _traj_runs(task_list, models: list[str], n: int, quick: bool) -> list[dict]:
+    """The trajectory recipe's runs through ``reproduce`` (merged into ``RESULTS_traj.md``,
+    a temporary one when ``quick``)."""
+    out = (Path(tempfile.mkdtemp()) if quick else ROOT) / "RESULTS_traj.md"
+    argv = ["--recipe", "traj", "--tasks", *task_list, "--models", *models, "--seeds", str(n)]
+    argv += ["--workers", "0" if JOBS == 1 else str(JOBS), "--out", str(out), "--merge"]
+    reproduce.main(argv + (["--max-steps", "20"] if quick else []))
+    runs = json.loads(out.with_suffix(".json").read_text())["runs"]
+    return [r for r in runs if r["task"] in task_list and r["seed"] < n and "error" not in r]
+
+
+def recording(quick: bool) -> str:
+    """The measured pendulum from its recording alone beside its differences: each model's
+    clean-protocol energy MSE and the rollout's energy slope against the held-out
+    segment's own."""
+    n = 1 if quick else 10
+    traj = _traj_runs(["real_pendulum"], list(RECORDING_MODELS), n, quick)
+    steps = [20 if quick else None] * n
+    rows = []
+    with ProcessPoolExecutor(JOBS) if JOBS > 1 else contextlib.nullcontext() as pool:
+        pmap = pool.map if pool else map
+        for model, label in RECORDING_MODELS.items():
+            for name, recipe, over in DIFFERENCES:
+                args = (["real_pendulum"] * n, [model] * n, range(n), steps, [recipe] * n)
+                rs = list(pmap(reproduce.run_one, *args, [over] * n))
+                bad = [r["error"] for r in rs if "error" in r]
+                if bad:
+                    raise RuntimeError(bad[0])
+                rows.append(_recording_row(label, name, rs))
+            states = [r for r in traj if r["model"] == model]
+            rows.append(_recording_row(label, "the recording's states only (traj recipe)", states))
+    head = (
+        "model | learns from | seeds | energy MSE, clean, median (worst) "
+        "| energy MSE, paper's protocol | energy slope per s, median (range) "
+        "| the recording's slope | state MSE, clean | train s (median)"
+    )
+    return table(head, rows)
+
+
+def _recording_row(label: str, name: str, rs: list[dict]) -> list:
+    clean = [r["clean"] for r in rs]
+    slopes = [c["energy_drift_slope"] for c in clean]
+    row = [
+        label,
+        name,
+        len(rs),
+        _mw([c["energy_mse"] for c in clean]),
+        _mw([r["reference"]["energy_mse"] for r in rs]),
+        f"{statistics.median(slopes):+.4f} ({min(slopes):+.4f} … {max(slopes):+.4f})",
+        f"{clean[0]['true_energy_drift_slope']:+.4f}",
+        _mw([c["state_mse"] for c in clean]),
+        f"{statistics.median(r['train_s'] for r in rs):.1f}",
+    ]
+    print(row, flush=True)
+    return row
 
 
 def figure(runs: dict, quick: bool) -> str:
@@ -227,13 +296,16 @@ def cost(quick: bool) -> str:
 
 
 def run(quick: bool = False) -> str:
-    acc, runs = accuracy(quick)
-    fig = figure(runs, quick)
-    return (
-        acc
-        + f"\n\nTime to accuracy, both objectives on the same axes: `docs/{fig}`.\n\n"
-        + cost(quick)
-    )
+    parts = []
+    if "accuracy" in PARTS:
+        acc, runs = accuracy(quick)
+        fig = figure(runs, quick)
+        parts += [acc, f"Time to accuracy, both objectives on the same axes: `docs/{fig}`."]
+    if "recording" in PARTS:
+        parts.append(recording(quick))
+    if "cost" in PARTS:
+        parts.append(cost(quick))
+    return "\n\n".join(parts)
 
 
 if __name__ == "__main__":

@@ -106,3 +106,5 @@ def test_other_tables(report):
         assert any(needle in h for h in headers), needle
     for needle in ("learned-H drift", "beating every dopri5 setting", "reference code's best"):
         assert any(needle in h for h in headers), needle
+    for needle in ("HNN trained on", "the recording's slope", "step ÷ (calls × call)"):
+        assert any(needle in h for h in headers), needle
