@@ -18,8 +18,8 @@ training seconds, median over seeds, all objectives on the same axes
 Cost: one trajectory step against what its field evaluations predict (step time ÷
 (field calls per step × one field call, forward and backward, on the same rows)),
 and Lightning's overhead (``fit`` against a bare loop of the same steps).
-Recording: the measured pendulum (one recording, ten initialisations), the HNN and the
-dissipative HNN learning from the paper's forward differences, from central differences
+Recording: the measured pendulum (one recording, ten initialisations), the baseline, the
+HNN and the dissipative HNN learning from the paper's forward differences, from central differences
 and from the recorded states alone; clean-protocol energy MSE and the rollout's energy
 slope against the held-out segment's own (−1.07 % per second).
 
@@ -84,6 +84,23 @@ def fit(task: str, seed: int, quick: bool, central: bool) -> dict:
     return {**record, "train_s": train_s, "tta_history": tta.history}
 
 
+@contextlib.contextmanager
+def _pmap():
+    """``map``, over ``JOBS`` processes when ``JOBS > 1``."""
+    if JOBS == 1:
+        yield map
+    else:
+        with ProcessPoolExecutor(JOBS) as pool:
+            yield pool.map
+
+
+def _raise_failed(runs: list[dict]) -> list[dict]:
+    bad = [r["error"] for r in runs if "error" in r]
+    if bad:
+        raise RuntimeError(bad[0])
+    return runs
+
+
 def _mw(values: list[float]) -> str:
     return f"{statistics.median(values):.2e} ({max(values):.2e})"
 
@@ -95,8 +112,7 @@ def accuracy(quick: bool) -> tuple[str, dict]:
     task_list = ("spring",) if quick else TASKS
     records = _traj_runs(task_list, ["hnn"], n, quick)
     runs = {}
-    with ProcessPoolExecutor(JOBS) if JOBS > 1 else contextlib.nullcontext() as pool:
-        pmap = pool.map if pool else map
+    with _pmap() as pmap:
         for task in task_list:
             seeds = range(n)
             exact = pmap(fit, [task] * n, seeds, [quick] * n, [False] * n)
@@ -108,16 +124,9 @@ def accuracy(quick: bool) -> tuple[str, dict]:
             ]
             if task == "spring" and not quick:
                 half = [("--data.init_args.keep_fraction=0.5",)] * n
-                runs[task, "half the samples (traj recipe)"] = list(
-                    pmap(
-                        reproduce.run_one,
-                        [task] * n,
-                        ["hnn"] * n,
-                        seeds,
-                        [None] * n,
-                        ["traj"] * n,
-                        half,
-                    )
+                args = ([task] * n, ["hnn"] * n, seeds, [None] * n, ["traj"] * n, half)
+                runs[task, "half the samples (traj recipe)"] = _raise_failed(
+                    list(pmap(reproduce.run_one, *args))
                 )
     rows = []
     for (task, name), rs in runs.items():
@@ -136,9 +145,10 @@ def accuracy(quick: bool) -> tuple[str, dict]:
     return table(head, rows), runs
 
 
-#: the measured pendulum's models and what they learn from: (name, recipe, overrides);
-#: the trajectory recipe's runs come from ``reproduce`` (``RESULTS_traj.md``)
+#: the measured pendulum's models (name in ``reproduce``: label)
 RECORDING_MODELS = {"baseline": "baseline", "hnn": "HNN", "dissipative": "dissipative HNN"}
+#: what they learn from besides the recorded states: (label, recipe, overrides); the
+#: trajectory recipe's runs come from ``reproduce`` (``RESULTS_traj.md``)
 DIFFERENCES = (
     ("forward differences (the paper's targets; fast recipe)", "fast", ()),
     ("central differences (fast recipe)", "fast", ("--data.init_args.differences=central",)),
@@ -153,7 +163,7 @@ def _traj_runs(task_list, models: list[str], n: int, quick: bool) -> list[dict]:
     argv += ["--workers", "0" if JOBS == 1 else str(JOBS), "--out", str(out), "--merge"]
     reproduce.main(argv + (["--max-steps", "20"] if quick else []))
     runs = json.loads(out.with_suffix(".json").read_text())["runs"]
-    return [r for r in runs if r["task"] in task_list and r["seed"] < n and "error" not in r]
+    return _raise_failed([r for r in runs if r["task"] in task_list and r["seed"] < n])
 
 
 def recording(quick: bool) -> str:
@@ -164,15 +174,11 @@ def recording(quick: bool) -> str:
     traj = _traj_runs(["real_pendulum"], list(RECORDING_MODELS), n, quick)
     steps = [20 if quick else None] * n
     rows = []
-    with ProcessPoolExecutor(JOBS) if JOBS > 1 else contextlib.nullcontext() as pool:
-        pmap = pool.map if pool else map
+    with _pmap() as pmap:
         for model, label in RECORDING_MODELS.items():
             for name, recipe, over in DIFFERENCES:
                 args = (["real_pendulum"] * n, [model] * n, range(n), steps, [recipe] * n)
-                rs = list(pmap(reproduce.run_one, *args, [over] * n))
-                bad = [r["error"] for r in rs if "error" in r]
-                if bad:
-                    raise RuntimeError(bad[0])
+                rs = _raise_failed(list(pmap(reproduce.run_one, *args, [over] * n)))
                 rows.append(_recording_row(label, name, rs))
             states = [r for r in traj if r["model"] == model]
             rows.append(_recording_row(label, "the recording's states only (traj recipe)", states))
