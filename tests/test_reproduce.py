@@ -161,3 +161,24 @@ def test_the_dissipative_model_runs_only_where_a_task_has_it(tmp_path, monkeypat
     assert "**real_pendulum.**" in md
     with pytest.raises(CLIError, match="no task of"):  # one line from __main__, exit 2
         reproduce.main(["--tasks", "spring", "--models", "dissipative", *common])
+
+
+def test_no_tta_skips_the_checks_and_says_so(tmp_path, monkeypatch):
+    """``--no-tta``: no time-to-accuracy record, the table says "not measured" (not
+    "not reached", which would claim a check failed); beside a timed run, the timed one
+    alone is counted."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["--tasks", "spring", "--models", "hnn", "--workers", "0", "--max-steps", "10"]
+    argv += ["--recipe", "fast", "--out", "R.md", "--seeds", "1", "--no-tta"]
+    assert reproduce.main(argv) == 0
+    (run,) = json.loads((tmp_path / "R.json").read_text())["runs"]
+    assert run["tta_measured"] is False and "tta" not in run and "tta_history" not in run
+    row = next(
+        line for line in (tmp_path / "R.md").read_text().splitlines() if "| spring |" in line
+    )
+    assert row.rstrip("| ").endswith("not measured"), row
+    timed = {**run, "seed": 1, "tta_measured": True, "tta": {"seconds": 2.5}}
+    (summary,) = reproduce.summarize([run, timed])
+    assert summary["tta"] == "2.5 (2.5) s, 1/1"
+    (summary,) = reproduce.summarize([run, {**timed, "tta": None}])
+    assert summary["tta"] == "not reached (0/1)"

@@ -84,10 +84,12 @@ def run_one(
     recipe: str = "paper",
     overrides: tuple[str, ...] = (),
     model_path: str | None = None,
+    tta: bool = True,
 ) -> dict:
     """Train one model from its config (plus CLI ``overrides`` such as
     ``"--data.init_args.differences=central"``) and evaluate it; never raises.
     ``model_path``: also ``torch.save`` the trained model's ``state_dict`` there.
+    ``tta=False``: no time-to-accuracy checks (the record says ``tta_measured: False``).
 
     Returns:
         the run's record: identifiers, losses, both protocols' results, wall times
@@ -95,11 +97,16 @@ def run_one(
     """
     record = {"task": task, "model": model, "seed": seed}
     with _quiet_lightning_runs():
-        return _run_one(record, max_steps, recipe, overrides, model_path)
+        return _run_one(record, max_steps, recipe, overrides, model_path, tta)
 
 
 def _run_one(
-    record: dict, max_steps: int | None, recipe: str, overrides: tuple, model_path: str | None
+    record: dict,
+    max_steps: int | None,
+    recipe: str,
+    overrides: tuple,
+    model_path: str | None,
+    measure_tta: bool,
 ) -> dict:
     task, model, seed = record["task"], record["model"], record["seed"]
     try:
@@ -116,7 +123,8 @@ def _run_one(
         cli.datamodule.prepare_data()
         cli.datamodule.setup("fit")
         tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every[recipe])
-        cli.trainer.callbacks.append(tta)
+        if measure_tta:
+            cli.trainer.callbacks.append(tta)
         t0 = time.perf_counter()
         cli.trainer.fit(cli.model, cli.datamodule)
         t1 = time.perf_counter()
@@ -125,10 +133,12 @@ def _run_one(
             train_s=t1 - t0 - tta.scoring_seconds,
             eval_s=time.perf_counter() - t1,
             steps=cli.trainer.global_step,
-            tta=tta.reached,
-            tta_state_target=tta.state_target,
-            tta_history=tta.history,
+            tta_measured=measure_tta,
         )
+        if measure_tta:
+            record.update(
+                tta=tta.reached, tta_state_target=tta.state_target, tta_history=tta.history
+            )
         if model_path is not None:
             torch.save(cli.model.state_dict(), model_path)
     except Exception:  # noqa: BLE001 - one failed run must not lose the others
@@ -257,7 +267,10 @@ def _fmt(median: float, worst: float | None = None) -> str:
 def _tta(runs: list[dict]) -> str:
     """``median (worst) s, k/n reached``: time to the joint criterion of
     :class:`~hnn_pl.commands.tta.TimeToAccuracy` (published HNN energy MSE and, where the
-    task has one, the paper recipe's clean state MSE)."""
+    task has one, the paper recipe's clean state MSE) over the runs that measured it."""
+    runs = [r for r in runs if r.get("tta_measured", True)]
+    if not runs:
+        return "not measured"
     secs = [r["tta"]["seconds"] if r.get("tta") else math.inf for r in runs]
     reached = sum(math.isfinite(s) for s in secs)
     if not runs or not reached:
@@ -401,8 +414,9 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         field = _fmt(*row["clean_field"]) if tasks.get(row["task"]).has_true_field else "n/a"
         paper = tasks.get(row["task"]).paper_motion
         target = "—" if paper is None else f"{paper.state_mse:.3g} / {_fmt(paper.field_error)}"
-        used = sorted({r.get("tta_state_target", math.inf) for r in runs})
-        used = ", ".join("none" if not math.isfinite(u) else f"{u:.3g}" for u in used)
+        timed = [r for r in runs if r.get("tta_measured", True)]
+        used = sorted({r.get("tta_state_target", math.inf) for r in timed})
+        used = ", ".join("none" if not math.isfinite(u) else f"{u:.3g}" for u in used) or "—"
         lines.append(
             f"| {row['task']} | {row['model']} | {_fmt(*row['clean_state'])} | {field} "
             f"| {vpt} | {_fmt(*row['clean_energy'])} | {target} | {used} |"
@@ -524,6 +538,12 @@ def main(argv: list[str] | None = None) -> int:
         help="keep the pixel runs' weights there (default: a temporary folder, removed at "
         "the end); a pixel baseline is read through its seed's HNN found there, also one "
         "an earlier --merge call left",
+    )
+    parser.add_argument(
+        "--no-tta",
+        action="store_true",
+        help="skip the time-to-accuracy checks (they cost more than the training in the "
+        "paper recipes; the table then says 'not measured')",
     )
     parser.add_argument(
         "--merge",
@@ -653,7 +673,7 @@ def _run_jobs(
     """Run every job (in this process for ``--workers 0``), ``done(record)`` as each
     finishes. Workers ignore Ctrl-C and die with this process (:func:`_die_with_parent`);
     on Ctrl-C or a dead worker the others are killed before the error goes on."""
-    kwargs = {"max_steps": args.max_steps, "recipe": args.recipe}
+    kwargs = {"max_steps": args.max_steps, "recipe": args.recipe, "tta": not args.no_tta}
     if args.workers == 0:
         for k, job in enumerate(jobs, 1):
             done(_started(job, k, len(jobs), **kwargs, model_path=paths.get(job)))
