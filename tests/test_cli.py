@@ -278,7 +278,8 @@ def test_a_config_extends_its_base(tmp_path, monkeypatch):
         save_config=False,
     )
     assert type(cli.model).__name__ == "Baseline" and cli.trainer.max_steps == 7
-    assert cli.model.hparams.schedule == "onecycle" and cli.model.hparams.lr == 3e-3
+    assert cli.model.hparams.schedule == "onecycle" and cli.model.hparams.lr == 1e-2
+    assert cli.model.hparams.weight_decay == 0.0 and cli.model.hparams.inner_steps == 10
     # a class that lacks some of the base's init_args keeps those it has
     other = tmp_path / "other.yaml"
     other.write_text("base: spring_traj\nmodel: {class_path: hnn_pl.models.AutoencoderBaseline}\n")

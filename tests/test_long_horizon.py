@@ -41,6 +41,7 @@ def test_energy_drift_slope_of_a_linear_drift():
 def test_the_floors_lie_below_a_trained_models_error():
     args = [
         "--config=spring_fast.yaml",
+        "--trainer.max_steps=150",
         "--trainer.logger=false",
         "--trainer.enable_checkpointing=false",
         "--trainer.enable_progress_bar=false",
