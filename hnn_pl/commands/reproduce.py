@@ -122,20 +122,21 @@ def _run_one(
         torch.set_num_threads(1)
         cli.datamodule.prepare_data()
         cli.datamodule.setup("fit")
-        tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every[recipe])
+        tta = None
         if measure_tta:
+            tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every[recipe])
             cli.trainer.callbacks.append(tta)
         t0 = time.perf_counter()
         cli.trainer.fit(cli.model, cli.datamodule)
         t1 = time.perf_counter()
         record.update(evaluate_task(task, cli.model, cli.datamodule))
         record.update(
-            train_s=t1 - t0 - tta.scoring_seconds,
+            train_s=t1 - t0 - (tta.scoring_seconds if tta else 0.0),
             eval_s=time.perf_counter() - t1,
             steps=cli.trainer.global_step,
             tta_measured=measure_tta,
         )
-        if measure_tta:
+        if tta:
             record.update(
                 tta=tta.reached, tta_state_target=tta.state_target, tta_history=tta.history
             )
@@ -264,16 +265,21 @@ def _fmt(median: float, worst: float | None = None) -> str:
     return f"{median:.3e}" if worst is None or math.isnan(worst) else f"{median:.2e} ({worst:.2e})"
 
 
+def _timed(runs: list[dict]) -> list[dict]:
+    """The runs that measured time to accuracy (not ``reproduce --no-tta``)."""
+    return [r for r in runs if r.get("tta_measured", True)]
+
+
 def _tta(runs: list[dict]) -> str:
     """``median (worst) s, k/n reached``: time to the joint criterion of
     :class:`~hnn_pl.commands.tta.TimeToAccuracy` (published HNN energy MSE and, where the
     task has one, the paper recipe's clean state MSE) over the runs that measured it."""
-    runs = [r for r in runs if r.get("tta_measured", True)]
+    runs = _timed(runs)
     if not runs:
         return "not measured"
     secs = [r["tta"]["seconds"] if r.get("tta") else math.inf for r in runs]
     reached = sum(math.isfinite(s) for s in secs)
-    if not runs or not reached:
+    if not reached:
         return f"not reached (0/{len(runs)})"
     med, worst = statistics.median(secs), max(secs)
     return f"{med:.1f} ({worst:.1f}) s, {reached}/{len(runs)}"
@@ -414,8 +420,7 @@ def write_markdown(records: list[dict], path: Path, meta: dict) -> None:
         field = _fmt(*row["clean_field"]) if tasks.get(row["task"]).has_true_field else "n/a"
         paper = tasks.get(row["task"]).paper_motion
         target = "—" if paper is None else f"{paper.state_mse:.3g} / {_fmt(paper.field_error)}"
-        timed = [r for r in runs if r.get("tta_measured", True)]
-        used = sorted({r.get("tta_state_target", math.inf) for r in timed})
+        used = sorted({r.get("tta_state_target", math.inf) for r in _timed(runs)})
         used = ", ".join("none" if not math.isfinite(u) else f"{u:.3g}" for u in used) or "—"
         lines.append(
             f"| {row['task']} | {row['model']} | {_fmt(*row['clean_state'])} | {field} "
