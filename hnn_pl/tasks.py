@@ -192,12 +192,7 @@ TASKS: dict[str, Task] = {
             rollout(t_end=5.0, max_starts=100),
             cost=5.0,
             tta_every={"paper": 250, "fast": 25},
-            paper_motion=PaperMotion(
-                8.358e-02,
-                4.295e-01,
-                "paper recipe HNN (TASK.yaml), clean protocol: state MSE the median of seeds 0-2 "
-                "(RESULTS.md); field error seed 0 only (its state MSE 8.24e-2)",
-            ),
+            paper_motion=PaperMotion(8.989e-02, 4.879e-01, _PAPER),
         ),
         Task(
             "pixel",
