@@ -191,7 +191,7 @@ TASKS: dict[str, Task] = {
             reference(starts="system", t_end=3.0, n_points=500, rtol=1e-9),
             rollout(t_end=5.0, max_starts=100),
             cost=5.0,
-            tta_every={"paper": 250, "fast": 25},
+            tta_every={"paper": 250, "fast": 150},
             paper_motion=PaperMotion(8.989e-02, 4.879e-01, _PAPER),
         ),
         Task(
