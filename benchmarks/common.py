@@ -69,7 +69,7 @@ def machine_table() -> str:
     rows = [
         ["CPU", cpu],
         ["cores", f"{os.cpu_count()} logical, {len(os.sched_getaffinity(0))} usable"],
-        ["torch", torch.__version__],
+        ["torch", f"{torch.__version__} ({torch.backends.cpu.get_cpu_capability()} kernels)"],
         ["lightning / scipy / numpy", versions],
         ["python", platform.python_version()],
     ]

@@ -6,6 +6,7 @@ import json
 import math
 
 import pytest
+import torch
 
 from hnn_pl.commands import reproduce
 from hnn_pl.commands.cli_errors import CLIError
@@ -32,6 +33,9 @@ def test_tiny_reproduction_writes_markdown_and_json(tmp_path, monkeypatch, capfd
     md = (tmp_path / "R.md").read_text()
     data = json.loads((tmp_path / "R.json").read_text())
     assert len(data["runs"]) == 4 and not any("error" in r for r in data["runs"])
+    # the SIMD kernels torch dispatches to: runs on other kernels may differ in the last bits
+    kernels = f"{torch.backends.cpu.get_cpu_capability()} kernels"
+    assert kernels in data["meta"]["machine"] and kernels in md
     for r in data["runs"]:
         assert r["steps"] == 3
         for value in (

@@ -589,11 +589,13 @@ def main(argv: list[str] | None = None) -> int:
         earlier = old["meta"].pop("earlier_calls", []) + [old["meta"]]
         earlier = _contributing(earlier, records)
     kept = len(records)
+    import torch
+
     meta = {
         "id": uuid.uuid4().hex,
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}",
+        f"{torch.backends.cpu.get_cpu_capability()} kernels, Python {platform.python_version()}",
         "command": f"`{parser.prog} " + " ".join(argv or sys.argv[2:]) + "`",
         "workers": max(args.workers, 1),
         "recipe": args.recipe,
