@@ -12,12 +12,25 @@ from typing import Any
 
 from hnn_pl import tasks
 from hnn_pl.evaluation.base import Rollout, eval_mode, in_dtype, integrate_field
-from hnn_pl.evaluation.metrics import grouped_mean, motion_error, observed_mean, report, score
+from hnn_pl.evaluation.metrics import (
+    grouped_mean,
+    motion_error,
+    observed_mean,
+    position_mse,
+    position_valid_time,
+    report,
+    score,
+    velocity_energy,
+    velocity_energy_mse,
+)
+from hnn_pl.evaluation.observer import Observation, ObserverStatus, infer_starts, observe
 from hnn_pl.evaluation.protocols import Protocol, ReferenceProtocol, describe, task_protocol
 from hnn_pl.evaluation.reference import ReferenceCase, reference_case
 from hnn_pl.evaluation.views import apply_probe, fit_probe, is_pixel_model, rollout, view_of
 
 __all__ = [
+    "Observation",
+    "ObserverStatus",
     "Protocol",
     "ReferenceCase",
     "ReferenceProtocol",
@@ -30,15 +43,21 @@ __all__ = [
     "fit_probe",
     "grouped_mean",
     "in_dtype",
+    "infer_starts",
     "integrate_field",
     "is_pixel_model",
     "motion_error",
+    "observe",
     "observed_mean",
+    "position_mse",
+    "position_valid_time",
     "reference_case",
     "report",
     "rollout",
     "score",
     "task_protocol",
+    "velocity_energy",
+    "velocity_energy_mse",
     "view_of",
 ]
 

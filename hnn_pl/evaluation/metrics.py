@@ -10,11 +10,13 @@ value is the mean over trajectories, and its "±" is the standard deviation of
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from hnn_pl.evaluation.base import Rollout
+from hnn_pl.evaluation.observer import float64_field
 
 
 def observed_mean(x: Tensor, dim: int | tuple[int, ...] | None = None) -> Tensor:
@@ -87,11 +89,77 @@ def valid_time(r: Rollout, threshold: float = 0.025) -> Tensor:
     """Valid prediction time per trajectory, ``(B,)``: the first ``t − t₀`` at which the
     normalised state error ``‖y_pred − y_true‖ / rms_t ‖y_true‖`` exceeds ``threshold``
     (the whole horizon if it never does)."""
-    scale = observed_mean((r.y_true**2).sum(-1), 0).sqrt()
-    err = (r.y_pred - r.y_true).norm(dim=-1) / scale.clamp_min(torch.finfo(scale.dtype).tiny)
+    return valid_time_of(r.t, r.y_pred, r.y_true, threshold)
+
+
+def valid_time_of(t: Tensor, y_pred: Tensor, y_true: Tensor, threshold: float = 0.025) -> Tensor:
+    """:func:`valid_time` of predictions ``y_pred`` against ``y_true``, both ``(T, B, d)``,
+    at times ``t (T,)``: ``(B,)``."""
+    scale = observed_mean((y_true**2).sum(-1), 0).sqrt()
+    err = (y_pred - y_true).norm(dim=-1) / scale.clamp_min(torch.finfo(scale.dtype).tiny)
     over = err > threshold
-    first = torch.where(over.any(0), over.to(torch.uint8).argmax(0), len(r.t) - 1)
-    return r.t[first] - r.t[0]
+    first = torch.where(over.any(0), over.to(torch.uint8).argmax(0), len(t) - 1)
+    return t[first] - t[0]
+
+
+def _mean_where_observed(sq: Tensor, truth: Tensor, dim: int | None = None) -> Tensor:
+    """Mean of ``sq`` over the entries where ``truth`` is not NaN (observed); a NaN of a
+    prediction at an observed entry stays NaN."""
+    seen = ~torch.isnan(truth)
+    total = torch.where(seen, sq, 0.0)
+    if dim is None:
+        return total.sum() / seen.sum()
+    return total.sum(dim) / seen.sum(dim)
+
+
+def position_mse(y_pred: Tensor, q_true: Tensor, k: int) -> Tensor:
+    """Position MSE ``mean_{t,b,i<k} (y_pred[..., i] − q_true[..., i])²``: the first ``k``
+    coordinates of predicted states (or positions) ``(T, B, ≥k)`` against the clean true
+    positions (or states) ``(T, B, ≥k)``, over the observed entries (NaN in the truth);
+    a scalar. Invariant under every canonical change that keeps ``q``."""
+    q = q_true[..., :k]
+    return _mean_where_observed((y_pred[..., :k] - q) ** 2, q)
+
+
+def position_valid_time(
+    t: Tensor, y_pred: Tensor, q_true: Tensor, k: int, threshold: float = 0.025
+) -> Tensor:
+    """:func:`valid_time` on positions: the first ``t − t₀`` at which
+    ``‖q_pred − q_true‖ / rms_t ‖q_true‖`` exceeds ``threshold``, from the first ``k``
+    coordinates of ``y_pred`` and ``q_true`` (each ``(T, B, ≥k)``) at ``t (T,)``;
+    ``(B,)``."""
+    return valid_time_of(t, y_pred[..., :k], q_true[..., :k], threshold)
+
+
+def velocity_energy(system: Any, field: Any, y: Tensor) -> Tensor:
+    """The true energy from positions and the field's own velocities along its path:
+    ``E(q, q̇) = system.energy_qv(q, f_θ(y)[..., :k])`` for states ``y (T, B, 2k)`` ->
+    ``(T, B)`` float64, ``f_θ`` = ``field.vector_field`` of a model, its ``.field`` or a
+    system, evaluated in float64 (:func:`~hnn_pl.evaluation.observer.float64_field`).
+    Gauge-invariant: ``q̇ = ∂H_θ/∂p`` is the same in every canonical frame that keeps
+    ``q``."""
+    k = y.shape[-1] // 2
+    flat = y.reshape(-1, y.shape[-1]).to(torch.float64)
+    f, _ = float64_field(field)
+    v = f(None, flat)[:, :k]
+    return system.energy_qv(flat[:, :k], v).reshape(y.shape[:-1])
+
+
+def velocity_energy_mse_per_trajectory(
+    system: Any, field: Any, y_pred: Tensor, e_true: Tensor
+) -> Tensor:
+    """``mean_t (E_true(t) − E(q_pred, q̇_pred)(t))²`` per trajectory, ``(B,)``:
+    ``e_true (T, B)`` the true energy of the true path (``system.energy(y_true)``, or a
+    recording's), NaN where unobserved (left out); the second term
+    :func:`velocity_energy` of ``y_pred (T, B, 2k)``."""
+    e = velocity_energy(system, field, y_pred)
+    return _mean_where_observed((e_true.to(e.dtype) - e) ** 2, e_true, 0)
+
+
+def velocity_energy_mse(system: Any, field: Any, y_pred: Tensor, e_true: Tensor) -> Tensor:
+    """The mean over trajectories of :func:`velocity_energy_mse_per_trajectory`: a
+    scalar."""
+    return velocity_energy_mse_per_trajectory(system, field, y_pred, e_true).mean()
 
 
 def field_error(r: Rollout) -> Tensor:

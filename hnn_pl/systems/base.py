@@ -177,3 +177,34 @@ class HamiltonianSystem(ABC):
                 self.vector_field, y64, t64, method="dopri5", rtol=self.rtol, atol=self.atol
             )
         return out.to(y0.dtype)
+
+    def momentum_qv(self, q: Tensor, v: Tensor) -> Tensor:
+        """The momenta whose velocity is ``v``: ``p`` with ``∂H/∂p (q, p) = v``, shape
+        ``(..., k), (..., k) -> (..., k)`` in ``q``'s dtype.
+
+        Assumes ``H`` quadratic in ``p``, ``H = ½ pᵀA(q)p + b(q)ᵀp + V(q)`` with ``A(q)``
+        invertible (every bundled system; any mechanical kinetic energy, magnetic terms
+        included): then ``∂H/∂p = A(q)p + b(q)`` and ``p = A(q)⁻¹ (v − b(q))``, with
+        ``b = ∂H/∂p`` and ``A = ∂²H/∂p²`` at ``(q, 0)`` by autograd of
+        :meth:`hamiltonian` over the whole batch at once (``k + 1`` backward passes). For
+        another ``H`` this is one Newton step from ``p = 0``; override it with the
+        closed form where there is one."""
+        k = self.dof
+        qf, vf = q.reshape(-1, k), v.reshape(-1, k)
+        with torch.inference_mode(False), torch.enable_grad():
+            qd = qf.detach().clone()
+            p = torch.zeros_like(qd, requires_grad=True)
+            h = self.hamiltonian(torch.cat([qd, p], -1))
+            (b,) = torch.autograd.grad(h.sum(), p, create_graph=True)
+            rows = [
+                torch.autograd.grad(b[:, i].sum(), p, retain_graph=True, allow_unused=True)[0]
+                for i in range(k)
+            ]
+        a = torch.stack([torch.zeros_like(qd) if r is None else r for r in rows], 1)
+        return torch.linalg.solve(a.detach(), vf - b.detach()).reshape(q.shape)
+
+    def energy_qv(self, q: Tensor, v: Tensor) -> Tensor:
+        """The physical energy from positions and velocities,
+        ``E(q, q̇) = energy(q, momentum_qv(q, q̇))``: ``(..., k), (..., k) -> (...)``.
+        Gauge-invariant: it reads no learned momentum."""
+        return self.energy(torch.cat([q, self.momentum_qv(q, v)], -1))

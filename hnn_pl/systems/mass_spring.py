@@ -42,6 +42,10 @@ class MassSpring(HamiltonianSystem):
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         return sample_annulus(n, self.radius, generator)
 
+    def momentum_qv(self, q: Tensor, v: Tensor) -> Tensor:
+        """``p = q̇ / (2β)``, shape ``(..., 1) -> (..., 1)``."""
+        return v / (2 * self.beta)
+
     def exact_solution(self, t: Tensor, y0: Tensor) -> Tensor:
         """Rotation in phase space: with ``ω = 2√(αβ)`` and ``s = √(α/β)``,
         ``q = q₀ cos ωt + p₀/s sin ωt``, ``p = p₀ cos ωt − s q₀ sin ωt``."""

@@ -38,3 +38,7 @@ class Pendulum(HamiltonianSystem):
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         return sample_annulus(n, self.radius, generator)
+
+    def momentum_qv(self, q: Tensor, v: Tensor) -> Tensor:
+        """``p = q̇ / (2β)``, shape ``(..., 1) -> (..., 1)``."""
+        return v / (2 * self.beta)
