@@ -130,6 +130,18 @@ def test_fifteen_noisy_samples_fix_the_start_and_five_do_not():
     assert per_row[5].mean() > 5 * per_row[15].mean()
 
 
+@pytest.mark.parametrize("c", [1e3, 1e-3])
+def test_the_fields_own_momentum_makes_the_start_blind_to_the_gauge(c):
+    """Velocities become momenta through the field's own ``q̇ = ∂H/∂p``: under a gauge
+    of ``p → 10³·p`` or ``10⁻³·p`` two Levenberg–Marquardt iterations already land on
+    the start (assuming ``p = q̇`` instead leaves it off by 0.03 to 25)."""
+    base = Pendulum()
+    y0 = starts(base, 25, seed=6)
+    o = observe(Rescaled(base, c), GRID[:15], positions(base, y0, GRID[:15]), iters=2)
+    assert (o.y0[:, 0] - y0[:, 0]).abs().max() < 1e-4
+    assert (o.y0[:, 1] / c - y0[:, 1]).abs().max() < 1e-4
+
+
 def test_uneven_times_per_row():
     system = Pendulum()
     y0 = starts(system, 8)
