@@ -244,6 +244,7 @@ def observe(
     fits: Sequence[int | None] = (3, 5, None),
     scales: Sequence[float] = (0.5, 0.7, 1.0, 1.4, 2.0),
     newton_iters: int = 8,
+    grid: int = 41,
     dtype: str | torch.dtype | None = "float64",
 ) -> Observation:
     """Infer each row's start ``(q₀, p₀)`` from its observed positions (module docstring).
@@ -261,6 +262,7 @@ def observe(
             values above ``M`` count as ``M``, below 2 are dropped.
         scales: factors ``c`` of the coarse search's candidates ``(q̂₀, c·p)``.
         newton_iters: Newton iterations of ``f(q̂₀, p)[:k] = v̂₀``.
+        grid: points of the coarse search's momentum grid (``k ≤ 2``; 0: none).
         dtype: the field's evaluation dtype (:func:`float64_field`).
 
     Returns:
@@ -286,7 +288,7 @@ def observe(
     q0 = torch.cat([a for a, _ in fitted])
     v0 = torch.cat([v for _, v in fitted])
     p0, _ = momentum_for_velocity(f, q0, v0, newton_iters, eps ** (1 / 3))
-    z, cost = _coarse_search(fit, q0, p0, scales)
+    z, cost = _coarse_search(fit, q0, p0, scales, grid)
     diverged = ~torch.isfinite(cost) & ~bad
     z = torch.where(diverged[:, None], torch.cat([fitted[-1][0], p0[-B:]], -1), z)
 
@@ -302,21 +304,38 @@ def observe(
 
 
 def _coarse_search(
-    fit: _Fit, q0: Tensor, p0: Tensor, scales: Sequence[float]
+    fit: _Fit, q0: Tensor, p0: Tensor, scales: Sequence[float], grid: int = 0
 ) -> tuple[Tensor, Tensor]:
     """Stage 3 of the module docstring: of the candidates ``(q̂₀, c·p)`` for the ``F`` fits
     (``q0``, ``p0 (F·B, k)``, fit-major) and each ``c`` of ``scales``, each row's best
     start ``(B, 2k)`` and its cost ``(B,)`` (``inf``: none was finite), all rolled out in
     one call of one step per interval."""
-    B = fit.q.shape[0]
+    B, k = fit.q.shape[0], p0.shape[-1]
     c = torch.tensor(list(scales) or [1.0], dtype=F64, device=q0.device)
-    cand = torch.cat([q0.expand(len(c), -1, -1), c[:, None, None] * p0], -1).reshape(
-        -1, p0.shape[-1] * 2
-    )
+    cand = torch.cat([q0.expand(len(c), -1, -1), c[:, None, None] * p0], -1).reshape(-1, 2 * k)
+    if grid and k <= 2:
+        cand = torch.cat([cand, _momentum_grid(q0[-B:], p0, grid)])
     cost = fit.costs(cand, torch.arange(B, device=q0.device), substeps=1)
     best = cost.argmin(0)
     z = cand.reshape(cost.shape[0], B, -1)[best, torch.arange(B, device=q0.device)]
     return z, cost.min(0).values
+
+
+def _momentum_grid(q0: Tensor, p0: Tensor, n: int) -> Tensor:
+    """Candidates ``(q̂₀, p)`` with ``p`` on a grid of about ``n`` points (``⌈n^{1/k}⌉`` per
+    axis) spanning ``±3·median |p|`` of the Newton momenta ``p0 (F·B, k)``: starts that
+    do not depend on the velocity fit, for rows whose fit lies near a turning point or a
+    wrong basin of the learned field. ``q0 (B, k)``; returns ``(n^k·B, 2k)``."""
+    k = p0.shape[-1]
+    finite = p0[torch.isfinite(p0).all(-1)]
+    span = 3 * (finite.abs().median() if len(finite) else torch.ones((), dtype=F64)) + 1e-3
+    per_axis = max(3, round(n ** (1 / k)))
+    axis = torch.linspace(-1, 1, per_axis, dtype=F64, device=p0.device) * span
+    points = torch.cartesian_prod(*[axis] * k).reshape(-1, k)
+    B = q0.shape[0]
+    return torch.cat(
+        [q0.expand(len(points), B, k), points[:, None, :].expand(-1, B, k)], -1
+    ).reshape(-1, 2 * k)
 
 
 def _levenberg_marquardt(
