@@ -156,7 +156,9 @@ class RolloutWriter(BasePredictionWriter):
     ``(B, D)`` tensor; pixel: frame pairs), and ``torch.save``-d as a dict:
     held-out: ``t (T,)``, ``y_true``/``y_pred (T, B, D)``, ``energy_true``/
     ``energy_pred (T, B)``, ``h_pred`` (HNN), ``metrics``; pixel also
-    ``frames_true``/``frames_pred``, ``z_pred`` (``y`` are the probe's ``(q, p)``).
+    ``frames_true``/``frames_pred``, ``z_pred`` (``y`` are the probe's ``(q, p)``); a
+    recording (:class:`~hnn_pl.data.RecordingData`) also ``t0 (B,)`` float64, the
+    file's time of each row's ``t = 0`` (its times in the file: ``t + t0[b]``).
     Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel), each
     row's ``status`` and ``t_stop`` (rows that stopped early are counted in the printed
     line; the CLI refuses a file of starts that is not a finite ``(B, D)`` tensor). The
@@ -227,6 +229,9 @@ class RolloutWriter(BasePredictionWriter):
                 "frames_pred": r.x_pred,
                 "z_pred": r.z_pred,
             }
+            t0 = getattr(dm, "test_t0", None)
+            if t0 is not None:
+                payload["t0"] = t0[: r.y_true.shape[1]]
         payload = {k: v.cpu() if torch.is_tensor(v) else v for k, v in payload.items()}
         payload = {k: v for k, v in payload.items() if v is not None}
         directory = self._directory(trainer)

@@ -17,6 +17,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import fault_cases_recording
 import pytest
 import torch
 
@@ -78,6 +79,8 @@ def _checkpoint(names: dict) -> dict:
 
 def _files(kind: str, tmp: Path) -> None:
     """Make the file a case needs in its working directory ``tmp``."""
+    if kind in fault_cases_recording.FILES:
+        return fault_cases_recording.FILES[kind](tmp)
     if kind == "empty-config":
         (tmp / "empty.yaml").write_text("")
     elif kind == "base-missing":
@@ -227,6 +230,7 @@ CASES = {
         "--out results is a directory",
     ),
 }
+CASES |= fault_cases_recording.CASES
 
 
 class _Forks:

@@ -287,8 +287,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         """Load the cached data (generating it if needed) in the served dtype."""
         if self.data is not None:
             return
-        raw = self.load_data()
-        self.data = {k: v.to(self.dtype) if v.is_floating_point() else v for k, v in raw.items()}
+        self.data = served(self.load_data(), self.dtype, type(self).__name__)
         for key, value in self.data.items():
             setattr(self, key, value)
         if "obs_y_train" in self.data:
@@ -426,9 +425,34 @@ def thin(traj: Tensor, keep_fraction: float, generator: torch.Generator) -> Tens
     starts = [0, *torch.tensor(counts).cumsum(0).tolist()[:-1]]
     kept = []
     for start, n in zip(starts, counts, strict=True):
-        k = min(n, max(2, math.ceil(keep_fraction * n)))
+        k = thinned_count(n, keep_fraction)
         kept.append(start + torch.randperm(n, generator=generator)[:k].sort().values)
     return torch.cat(kept)
+
+
+def thinned_count(n: int, keep_fraction: float) -> int:
+    """Samples :func:`thin` keeps of a trajectory of ``n``: ``min(n, max(2, ⌈f · n⌉))``."""
+    return min(n, max(2, math.ceil(keep_fraction * n)))
+
+
+def served(data: dict[str, Tensor], dtype: torch.dtype, owner: str) -> dict[str, Tensor]:
+    """``data``'s floating tensors in ``dtype`` (others as they are); a finite value the
+    cast makes infinite raises ``ValueError`` naming the tensor and ``dtype: float64``."""
+    out = {}
+    for key, value in data.items():
+        if not value.is_floating_point() or value.dtype == dtype:
+            out[key] = value
+            continue
+        out[key] = value.to(dtype)
+        overflow = torch.isinf(out[key]) & torch.isfinite(value)
+        if overflow.any():
+            v = float(value[overflow].flatten()[0])
+            raise ValueError(
+                f"{owner}: {key} holds {v:g}, beyond {str(dtype).removeprefix('torch.')} (largest "
+                f"{torch.finfo(dtype).max:.4g}), the dtype it is served in: "
+                "set data.init_args.dtype: float64"
+            )
+    return out
 
 
 def window_starts(traj: Tensor, k: int) -> Tensor:

@@ -6,10 +6,17 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
-from hnn_pl.data.recording import Recording, RecordingData, differences, load_recording
+from hnn_pl.data.recording import (
+    Recording,
+    RecordingData,
+    differences,
+    load_recording,
+    recording_from_arrays,
+)
 from hnn_pl.systems.real_pendulum import RealPendulum, load_real_pendulum
 
 #: the measured trajectory as a recording (:mod:`hnn_pl.data.recording`)
@@ -81,15 +88,16 @@ class RealPendulumData(RecordingData):
 
     def read(self, path: str | None) -> Recording:
         """The shipped recording (``None``), a ``.txt`` of the original format, or a
-        recording file."""
+        recording file, on the file's own time axis (the reference's split times: not
+        shifted, ``t0 = 0``), checked to fit the served dtype."""
         if path is None:
             with resources.as_file(resources.files("hnn_pl.data") / RECORDING_FILE) as shipped:
-                return load_recording(shipped)
+                return load_recording(shipped, self.dtype, shift=False)
         if Path(path).suffix != ".txt":
-            return load_recording(path)
+            return load_recording(path, self.dtype, shift=False)
         t, y = load_real_pendulum(path)
-        traj = torch.zeros(len(t), dtype=torch.int64)
-        return Recording(str(path), traj, t, y, torch.zeros(1, dtype=torch.int64))
+        ids = np.zeros(len(t), dtype=np.int64)
+        return recording_from_arrays(path, ids, t.numpy(), y.numpy(), dtype=self.dtype, shift=False)
 
     def _split(self, *_: Any) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
         """The samples of ``test_t`` held out (central differences: one later)."""
