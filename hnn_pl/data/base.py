@@ -173,6 +173,12 @@ class TrajectoryDataModule(L.LightningDataModule):
             times), in both splits; drawn from a generator of its own (seed
             ``seed + THIN_SEED_OFFSET``), so the data draws do not change. The
             derivative pairs and the rollout targets are never thinned.
+        observe: ``"states"``: the ``obs_*`` tables hold ``(q, p)``; ``"positions"``:
+            ``q`` alone, ``(S, k)`` (what a camera or an encoder records; the momenta
+            are learned, see :class:`~hnn_pl.models.base.DynamicsModel`), drawn from
+            the same data; the derivative pairs are then made from the positions
+            alone (:func:`~hnn_pl.data.differences.position_pairs`). The rollout
+            targets keep the truth.
     """
 
     system = None
@@ -186,8 +192,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         dtype: str = "float32",
         window: int | None = None,
         keep_fraction: float = 1.0,
+        observe: str = "states",
     ) -> None:
         super().__init__()
+        require(observe in OBSERVE, f"observe must be one of {OBSERVE}, got {observe!r}")
         if dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
         require(
@@ -201,6 +209,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         )
         self.window = window
         self.keep_fraction = float(keep_fraction)
+        self.observe = observe
         self.batch_size = batch_size
         self.full_batch_steps = full_batch_steps
         self.seed = int(os.environ.get("PL_GLOBAL_SEED", 0)) if seed is None else seed
@@ -288,6 +297,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         if self.data is not None:
             return
         self.data = served(self.load_data(), self.dtype, type(self).__name__)
+        if self.observe == "positions":
+            self.data.update(positions_only(self.data, self.state_dim // 2))
         for key, value in self.data.items():
             setattr(self, key, value)
         if "obs_y_train" in self.data:
@@ -428,6 +439,28 @@ def thin(traj: Tensor, keep_fraction: float, generator: torch.Generator) -> Tens
         k = thinned_count(n, keep_fraction)
         kept.append(start + torch.randperm(n, generator=generator)[:k].sort().values)
     return torch.cat(kept)
+
+
+#: what the ``obs_*`` tables hold (``observe``)
+OBSERVE = ("states", "positions")
+
+
+def positions_only(data: dict[str, Tensor], k: int) -> dict[str, Tensor]:
+    """The tables of ``observe="positions"``: ``obs_y_{split}`` cut to their first ``k``
+    columns, and the derivative pairs ``x_{split}``, ``dx_{split}`` made from those
+    positions alone (:func:`~hnn_pl.data.differences.position_pairs`: what a
+    derivative fit, and ``H_θ``'s yardstick, can see). Raises ``ValueError`` for data
+    without observed trajectories."""
+    from hnn_pl.data.differences import position_pairs
+
+    require("obs_y_train" in data, "observe: positions needs observed trajectories (obs_*)")
+    out = {}
+    for split in ("train", "test"):
+        q = data[f"obs_y_{split}"][:, :k]
+        out[f"obs_y_{split}"] = q
+        x, dx = position_pairs(q, data[f"obs_t_{split}"], data[f"obs_traj_{split}"])
+        out[f"x_{split}"], out[f"dx_{split}"] = x, dx
+    return out
 
 
 def thinned_count(n: int, keep_fraction: float) -> int:

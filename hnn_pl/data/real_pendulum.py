@@ -52,7 +52,8 @@ class RealPendulumData(RecordingData):
             ``.txt`` format (``None``: the shipped recording).
         test_start, test_stop: the held-out pairs ``[test_start, test_stop)``.
         differences: ``"forward"`` (paper) or ``"central"``.
-        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction:
+        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction,
+            observe:
             see :class:`~hnn_pl.data.base.TrajectoryDataModule`.
     """
 
@@ -69,6 +70,7 @@ class RealPendulumData(RecordingData):
         differences: str = "forward",
         window: int | None = None,
         keep_fraction: float = 1.0,
+        observe: str = "states",
     ) -> None:
         self.test_start, self.test_stop = test_start, test_stop
         super().__init__(
@@ -82,6 +84,7 @@ class RealPendulumData(RecordingData):
             dtype=dtype,
             window=window,
             keep_fraction=keep_fraction,
+            observe=observe,
         )
         for name in ("test_fraction", "test_trajectories", "test_segment"):
             self.hparams.pop(name, None)  # RecordingData's, not options of this class

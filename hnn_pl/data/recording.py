@@ -3,14 +3,19 @@
 A recording is a table of samples ``(trajectory, time, q₁ … q_k, p₁ … p_k)``, in one of
 three files (the suffix picks the reader):
 
-- ``.csv``: a header line ``trajectory,time,q1,…,qk,p1,…,pk`` (exactly these names),
+- ``.csv``: a header line ``trajectory,time,q1,…,qk,p1,…,pk`` (exactly these names;
+  ``q,p`` for ``k = 1``), or ``trajectory,time,q1,…,qk`` (``q``) for positions alone,
   then one sample per line; lines starting with ``#`` and blank lines are skipped. Cells
   are read strictly: a trajectory id is an integer (``-12``; a float literal such as
   ``7.0`` only if it is exactly a whole number), every other cell a decimal number (``1.5``,
   ``-2e-3``; no ``_`` separators, no hex);
 - ``.npz`` (``numpy.savez``) or ``.pt`` (``torch.save`` of a dict): arrays
   ``trajectory (S,)`` (integer ids; floats only if whole numbers within ``±2⁵³``),
-  ``t (S,)`` and ``y (S, 2k)`` (``y = (q, p)``). Nothing is unpickled: a pickle is refused.
+  ``t (S,)`` and ``y (S, 2k)`` (``y = (q, p)``), or ``q (S, k)`` instead of ``y`` for
+  positions alone. Nothing is unpickled: a pickle is refused.
+
+A recording of positions alone (what a camera or an encoder records) is served with
+``observe="positions"`` (:class:`RecordingData` sets it): the momenta are learned.
 
 A trajectory is every sample with its id, in file order; its times must increase
 strictly in that order and it needs at least two samples. Ids need not be contiguous
@@ -71,6 +76,12 @@ class Recording:
     y: Tensor
     ids: Tensor
     t0: Tensor
+    positions: bool = False
+
+    @property
+    def state_dim(self) -> int:
+        """``2k``: the state's width (a positions recording holds ``k`` columns)."""
+        return self.y.shape[-1] * (2 if self.positions else 1)
 
     @property
     def n_trajectories(self) -> int:
@@ -87,12 +98,31 @@ def _fail(path: str | Path, where: str, problem: str) -> NoReturn:
     raise ValueError(f"recording {path}{', ' + where if where else ''}: {problem}")
 
 
-def column_names(d: int) -> list[str]:
-    """``trajectory, time, q1 … qk, p1 … pk`` for ``d = 2k`` state columns."""
-    k = d // 2
-    return ["trajectory", "time", *(f"q{i}" for i in range(1, k + 1))] + [
-        f"p{i}" for i in range(1, k + 1)
-    ]
+def column_names(d: int, positions: bool = False) -> list[str]:
+    """``trajectory, time, q1 … qk, p1 … pk`` for ``d = 2k`` state columns (``positions``:
+    ``trajectory, time, q1 … qk`` for ``d = k``)."""
+    k = d if positions else d // 2
+    qs = [f"q{i}" for i in range(1, k + 1)]
+    return ["trajectory", "time", *qs] + ([] if positions else [f"p{i}" for i in range(1, k + 1)])
+
+
+#: the header forms, for messages
+HEADERS = (
+    "trajectory,time,q1,…,qk,p1,…,pk (or q,p), or trajectory,time,q1,…,qk (or q) for positions"
+)
+
+
+def header_names(names: list[str]) -> tuple[list[str], bool] | None:
+    """``names`` in the canonical form of :func:`column_names` and whether they are
+    positions alone, or ``None`` for a header of neither form (``q``/``p`` stand for
+    ``q1``/``p1`` when ``k = 1``)."""
+    short = {("q",): ["q1"], ("q", "p"): ["q1", "p1"]}
+    canon = names[:2] + short.get(tuple(names[2:]), names[2:])
+    d = len(canon) - 2
+    for positions in (False, True):
+        if d >= 1 and canon == column_names(d, positions) and (positions or d % 2 == 0):
+            return canon, positions
+    return None
 
 
 # ------------------------------------------------------------------ file kinds
@@ -150,17 +180,13 @@ def _text(path: Path, n: int, raw: bytes) -> str:
 
 
 def _header(path: Path, n: int, text: str) -> list[str]:
-    """The column names of the header line ``text`` (line ``n``), checked."""
-    names = [c.strip() for c in text.split(",")]
-    k = (len(names) - 2) // 2
-    if k < 1 or names != column_names(2 * k):
+    """The canonical column names of the header line ``text`` (line ``n``), checked
+    (:func:`header_names`)."""
+    known = header_names([c.strip() for c in text.split(",")])
+    if known is None:
         got = text if len(text) <= 60 else text[:57] + "..."
-        _fail(
-            path,
-            f"line {n}",
-            f"header must be trajectory,time,q1,…,qk,p1,…,pk (k ≥ 1), got {got!r}",
-        )
-    return names
+        _fail(path, f"line {n}", f"header must be {HEADERS}, got {got!r}")
+    return known[0]
 
 
 def _data_lines(path: Path) -> Iterator[tuple[int, str]]:
@@ -211,7 +237,7 @@ def _read_csv_strict(path: Path) -> tuple[np.ndarray, np.ndarray, Callable[[int]
     lines = _data_lines(path)
     first = next(lines, None)
     if first is None:
-        _fail(path, "", "empty: expected a header trajectory,time,q1,…,qk,p1,…,pk")
+        _fail(path, "", f"empty: expected a header {HEADERS}")
     names = _header(path, *first)
     cell = r"\s*(" + _FLOAT + r")\s*"
     row = re.compile(",".join([cell] * len(names)))
@@ -298,7 +324,13 @@ def _read_csv(path: Path) -> tuple[np.ndarray, np.ndarray, Callable[[int], str]]
 # ------------------------------------------------------------- npz and pt
 
 KEYS = ("trajectory", "t", "y")
-NEEDS = "needs trajectory (S,), t (S,), y (S, 2k)"
+NEEDS = "needs trajectory (S,), t (S,), y (S, 2k) or q (S, k) for positions"
+
+
+def _keys(available: Any) -> tuple[str, ...]:
+    """The arrays to read: :data:`KEYS`, with ``q`` (positions) for ``y`` when a file
+    has ``q`` and no ``y``."""
+    return ("trajectory", "t", "q") if "q" in available and "y" not in available else KEYS
 
 
 def _load_npz(path: Path) -> dict[str, Any]:
@@ -310,10 +342,11 @@ def _load_npz(path: Path) -> dict[str, Any]:
     arrays, problem = {}, None
     try:
         with np.load(path, allow_pickle=False) as f:
-            missing = [k for k in KEYS if k not in f.files]
+            keys = _keys(f.files)
+            missing = [k for k in keys if k not in f.files]
             if missing:
                 problem = f"missing {', '.join(missing)} ({NEEDS})"
-            for key in KEYS if not missing else ():
+            for key in keys if not missing else ():
                 try:
                     arrays[key] = f[key]
                 except ValueError as err:
@@ -354,10 +387,11 @@ def _load_pt(path: Path) -> dict[str, Any]:
         _fail(path, "", f"not a torch.save file of tensors ({problem})")
     if not isinstance(loaded, dict):
         _fail(path, "", f"expected a dict of trajectory, t, y; got a {type(loaded).__name__}")
-    missing = [k for k in KEYS if k not in loaded]
+    keys = _keys(loaded)
+    missing = [k for k in keys if k not in loaded]
     if missing:
         _fail(path, "", f"missing {', '.join(missing)} ({NEEDS})")
-    return {k: loaded[k] for k in KEYS}
+    return {k: loaded[k] for k in keys}
 
 
 def _numbers(path: Path, key: str, value: Any) -> np.ndarray:
@@ -413,22 +447,35 @@ def _array_times(path: Path, t: np.ndarray) -> np.ndarray:
     return t.astype(np.int64 if t.dtype.kind in "iu" else np.float64)
 
 
-def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, Callable[[int], str]]:
+def _read_arrays(
+    path: Path,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, Callable[[int], str], bool]:
     """``ids (S,)`` int64, ``t (S,)`` (int64 or float64), ``y (S, D)`` float64 of an
-    ``.npz``/``.pt`` recording and the name (``row i``) of each sample."""
+    ``.npz``/``.pt`` recording, the name (``row i``) of each sample, and whether ``y`` is
+    positions alone (the file's ``q``)."""
     raw = _load_npz(path) if path.suffix == ".npz" else _load_pt(path)
-    a = {key: _numbers(path, key, raw[key]) for key in KEYS}
+    positions = "q" in raw
+    a = {key: _numbers(path, key, raw[key]) for key in raw}
+    y = a["q" if positions else "y"]
     s = len(a["t"]) if a["t"].ndim == 1 else -1
-    d = a["y"].shape[1] if a["y"].ndim == 2 else 0
-    if not (a["trajectory"].shape == a["t"].shape == (s,) and a["y"].shape == (s, d)):
+    d = y.shape[1] if y.ndim == 2 else 0
+    want = "q (S, k)" if positions else "y (S, 2k)"
+    if not (a["trajectory"].shape == a["t"].shape == (s,) and y.shape == (s, d)):
         shapes = ", ".join(f"{k} {tuple(v.shape)}" for k, v in a.items())
-        _fail(path, "", f"shapes must be trajectory (S,), t (S,), y (S, 2k); got {shapes}")
-    if d < 2 or d % 2:
+        _fail(path, "", f"shapes must be trajectory (S,), t (S,), {want}; got {shapes}")
+    if d < 1 or (d % 2 and not positions):
         _fail(path, "", f"y must have an even number 2k ≥ 2 of columns (q, p), got {d}")
     if s == 0:
         _fail(path, "", "no samples")
     ids = _array_ids(path, a["trajectory"])
-    return ids, _array_times(path, a["t"]), a["y"].astype(np.float64), lambda i: f"row {i}"
+    t = _array_times(path, a["t"])
+    return ids, t, y.astype(np.float64), lambda i: f"row {i}", positions
+
+
+def _csv_positions(path: Path) -> bool:
+    """Whether a (checked) CSV recording's header names positions alone."""
+    n, text = next(_data_lines(path))
+    return "p1" not in _header(path, n, text)
 
 
 # ------------------------------------------------------------------ checks
@@ -461,10 +508,10 @@ def load_recording(
         _fail(path, "", "no such file")
     if path.suffix == ".csv":
         ids, values, where = _read_csv(path)
-        t, y = values[:, 0], values[:, 1:]
+        t, y, positions = values[:, 0], values[:, 1:], _csv_positions(path)
     else:
-        ids, t, y, where = _read_arrays(path)
-    return recording_from_arrays(path, ids, t, y, where, dtype, shift)
+        ids, t, y, where, positions = _read_arrays(path)
+    return recording_from_arrays(path, ids, t, y, where, dtype, shift, positions)
 
 
 def recording_from_arrays(
@@ -475,11 +522,12 @@ def recording_from_arrays(
     where: Callable[[int], str] = lambda i: f"row {i}",
     dtype: str | torch.dtype = torch.float64,
     shift: bool = True,
+    positions: bool = False,
 ) -> Recording:
     """The checked :class:`Recording` of samples ``ids (S,)`` int64, ``t (S,)`` (float64,
-    or int64: shifted exactly), ``y (S, D)`` float64 in file order, ``where(i)`` naming
-    sample ``i`` in messages (see :func:`load_recording`)."""
-    names = column_names(y.shape[1])
+    or int64: shifted exactly), ``y (S, D)`` float64 in file order (``positions``: ``q
+    (S, k)``), ``where(i)`` naming sample ``i`` in messages (see :func:`load_recording`)."""
+    names = column_names(y.shape[1], positions)
     finite = np.isfinite(y).all(1)
     if t.dtype.kind == "f":
         finite &= np.isfinite(t)
@@ -529,6 +577,7 @@ def recording_from_arrays(
         torch.from_numpy(np.ascontiguousarray(y_s, dtype=np.float64)),
         torch.from_numpy(ids_s[starts].astype(np.int64)),
         torch.from_numpy(t0.astype(np.float64)),
+        positions,
     )
 
 
@@ -652,7 +701,8 @@ class RecordingData(TrajectoryDataModule):
         test_trajectories: the file's ids of the held-out trajectories.
         test_segment: ``(t_a, t_b)``: the held-out times of a single recording.
         differences: ``"central"`` or ``"forward"`` derivative pairs.
-        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction:
+        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction,
+            observe:
             see :class:`TrajectoryDataModule`.
     """
 
@@ -671,9 +721,10 @@ class RecordingData(TrajectoryDataModule):
         dtype: str = "float32",
         window: int | None = None,
         keep_fraction: float = 1.0,
+        observe: str = "states",
     ) -> None:
         super().__init__(
-            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction
+            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction, observe
         )
         require(
             differences in ("forward", "central"),
@@ -681,10 +732,12 @@ class RecordingData(TrajectoryDataModule):
         )
         self.save_hyperparameters(ignore=["system", "cache_dir"])
         self.recording = self.read(path)
+        if self.recording.positions:
+            self.observe = self.hparams["observe"] = "positions"
         self.path, self.differences = path, differences
         self.system = system
         self.hparams["system"] = None if system is None else system_spec(system)
-        d = self.recording.y.shape[-1]
+        d = self.recording.state_dim
         require(
             system is None or system.state_dim == d,
             f"system {type(system).__name__} has state_dim {getattr(system, 'state_dim', d)}, "
@@ -732,7 +785,13 @@ class RecordingData(TrajectoryDataModule):
 
     @property
     def state_dim(self) -> int:
-        return self.recording.y.shape[-1]
+        return self.recording.state_dim
+
+    @property
+    def has_energy(self) -> bool:
+        """A system is set and the recording holds momenta (a positions recording's
+        truth has none, so no energy is scored)."""
+        return self.system is not None and not self.recording.positions
 
     def _split(
         self,
@@ -810,9 +869,12 @@ class RecordingData(TrajectoryDataModule):
 
     def generate(self) -> dict[str, Tensor]:
         rec = self.recording
+        y_all = rec.y
+        if rec.positions:  # the truth's momenta are unknown: NaN, never scored
+            y_all = torch.cat([rec.y, torch.full_like(rec.y, math.nan)], -1)
         data: dict[str, Tensor] = {}
         for split, bounds in zip(("train", "test"), self.held_out, strict=True):
-            pieces = [(rec.t[a:b], rec.y[a:b]) for a, b in bounds]
+            pieces = [(rec.t[a:b], y_all[a:b]) for a, b in bounds]
             data[f"obs_y_{split}"] = torch.cat([y for _, y in pieces])
             data[f"obs_t_{split}"] = torch.cat([t for t, _ in pieces])
             data[f"obs_traj_{split}"] = torch.cat(

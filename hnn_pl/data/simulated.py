@@ -45,7 +45,8 @@ class SimulatedData(TrajectoryDataModule):
         noise_std: standard deviation of the input noise.
         test_fraction: share of the trajectories held out.
         test_first: hold out the first (not the last) trajectories.
-        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction: see
+        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction,
+            observe: see
             :class:`TrajectoryDataModule`.
     """
 
@@ -65,9 +66,10 @@ class SimulatedData(TrajectoryDataModule):
         dtype: str = "float32",
         window: int | None = None,
         keep_fraction: float = 1.0,
+        observe: str = "states",
     ) -> None:
         super().__init__(
-            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction
+            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction, observe
         )
         split_sizes(n_trajectories, test_fraction)
         require(n_points >= 2, f"n_points must be >= 2: {n_points}")

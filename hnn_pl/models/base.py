@@ -16,6 +16,22 @@ OBJECTIVES = ("derivative", "trajectory")
 LEARNED_STATES = ("none", "sample", "trajectory")
 
 
+def with_momenta(obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor, state_dim: int) -> Tensor:
+    """Observed samples as states ``(S, 2k)``: ``obs_y`` itself when it holds states;
+    for positions alone ``obs_y (S, k)``, ``(q, v̂)`` with ``v̂`` the local quadratic
+    fit's velocity (:func:`~hnn_pl.data.differences.smoothed_velocity`), i.e. the
+    momenta in the gauge ``p = q̇`` (unit mass). From positions the momenta are fixed
+    only up to a canonical change that keeps ``q``; this start makes the learned
+    ``H_θ``'s kinetic term ``≈ ½|p|²`` near the data and carries a denoised velocity
+    (noise ``~σ/(Δt·5^{3/2})`` against central differences' ``σ/(√2 Δt)``)."""
+    if obs_y.shape[-1] == state_dim:
+        return obs_y
+    from hnn_pl.data.differences import smoothed_velocity
+
+    v = smoothed_velocity(obs_y.double(), obs_t.double(), obs_traj)
+    return torch.cat([obs_y, v.to(obs_y.dtype)], -1)
+
+
 class DynamicsModel(RecipeModel):
     """A LightningModule that learns ``dy/dt = f_θ(y)`` from derivatives or from trajectories.
 
@@ -166,11 +182,18 @@ class DynamicsModel(RecipeModel):
         self.traj_first = first.nonzero().flatten().to(self.device)
         self.obs_t_train = obs_t.to(self.device, self.dtype)
         if self.states is None:
-            init = obs_y if self.learned_states == "sample" else obs_y[self.traj_first]
+            full = with_momenta(obs_y, obs_t, obs_traj, self.hparams.input_dim)
+            init = full if self.learned_states == "sample" else full[self.traj_first]
             self.states = nn.Parameter(init.detach().clone().to(self.device, self.dtype))
 
     def setup(self, stage: str) -> None:
         dm = self.trainer.datamodule if self._trainer is not None else None
+        if dm is not None and stage == "fit" and getattr(dm, "observe", "") == "positions":
+            if self.objective == "trajectory" and self.learned_states == "none":
+                raise ValueError(
+                    "positions alone give no momenta to start a window from: set "
+                    "model.init_args.learned_states: sample (or trajectory)"
+                )
         if self.learned_states != "none" and dm is not None and stage == "fit":
             if not hasattr(dm, "obs_y_train"):
                 dm.setup(stage)
@@ -239,10 +262,11 @@ class DynamicsModel(RecipeModel):
                 pred = self.integrate_windows(self.states[traj], times, n)[:, 1:]
             else:  # every window starts its trajectory
                 pred = self.integrate_windows(self.states[traj], t)
-        fit = nn.functional.mse_loss(pred[:, 1:], y[:, 1:])
+        k = y.shape[-1]  # 2k for states, k for positions alone
+        fit = nn.functional.mse_loss(pred[:, 1:, :k], y[:, 1:])
         if self.states is None:
             return {"loss": fit}
-        anchor = nn.functional.mse_loss(pred[:, 0], y[:, 0])
+        anchor = nn.functional.mse_loss(pred[:, 0, :k], y[:, 0])
         out = {"loss": fit + self.state_weight * anchor, "fit": fit, "anchor": anchor}
         if self.continuity_weight:
             out["continuity"] = nn.functional.mse_loss(pred[:, 1:], self.states[index[:, 1:]])
@@ -262,8 +286,29 @@ class DynamicsModel(RecipeModel):
         batch = self._batch(batch)
         if self.objective == "trajectory":
             y, t = batch[0], batch[1]
-            return self.integrate_windows(y[:, 0], t)[:, 1:].reshape(-1), y[:, 1:].reshape(-1)
+            pred = self.integrate_windows(self.window_starts(y, t), t)[:, 1:, : y.shape[-1]]
+            return pred.reshape(-1), y[:, 1:].reshape(-1)
         return self(batch[0]), batch[1]
+
+    def window_starts(self, y: Tensor, t: Tensor) -> Tensor:
+        """The states ``(B, 2k)`` held-out windows ``y (B, K, ·)`` at ``t (B, K)`` start
+        from: the observed ``y[:, 0]``, or for positions alone ``(q, p)`` with ``q`` the
+        observed first position and ``p`` the field's momentum for the velocity fitted
+        to the window's first samples (:func:`~hnn_pl.evaluation.observer.momentum_for_velocity`:
+        the model's own gauge, no integration)."""
+        if 2 * y.shape[-1] != self.hparams.input_dim:
+            return y[:, 0]
+        from hnn_pl.evaluation.observer import (
+            fit_position_velocity,
+            float64_field,
+            momentum_for_velocity,
+        )
+
+        f, eps = float64_field(self.field)
+        q64, t64 = y.double(), t.double()
+        q0, v0 = fit_position_velocity(t64, q64, min(5, y.shape[1]))
+        p0, _ = momentum_for_velocity(f, q0, v0, 8, eps ** (1 / 3))
+        return torch.cat([y[:, 0].double(), p0], -1).to(y.dtype)
 
     def validation_step(self, batch: tuple[Tensor, ...], batch_idx: int) -> None:
         self.val_mse(*self._eval_pair(batch))
@@ -277,5 +322,5 @@ class DynamicsModel(RecipeModel):
         """The predicted ``dy/dt`` of the batch's states, ``(batch, 2k)``; for a window
         batch, the states integrated from each window's observed start, ``(B, K, 2k)``."""
         if len(batch) == 3 and batch[0].ndim == 3:
-            return self.integrate_windows(batch[0][:, 0], batch[1])
+            return self.integrate_windows(self.window_starts(batch[0], batch[1]), batch[1])
         return self(batch[0])
