@@ -498,6 +498,16 @@ def _new_run_dir(recipe: str) -> Path:
     return path
 
 
+def _machine() -> str:
+    """``x86_64, 2 cores, AVX2 kernels, Python 3.11.7``: what a run's numbers depend on."""
+    import torch
+
+    return (
+        f"{platform.machine()}, {os.cpu_count()} cores, "
+        f"{torch.backends.cpu.get_cpu_capability()} kernels, Python {platform.python_version()}"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     from hnn_pl.commands.cli_errors import program_name
 
@@ -520,9 +530,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--recipe",
         default="paper",
-        choices=tasks.RECIPES,
+        choices=(*tasks.RECIPES, "positions"),
         help="paper: the paper's settings (TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
-        "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml)",
+        "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml); "
+        "positions: from positions alone (TASK_positions*.yaml) beside the states-only and "
+        "finite-difference fits, scored through the observer (RESULTS_positions.md)",
     )
     parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, …)")
     parser.add_argument(
@@ -559,6 +571,10 @@ def main(argv: list[str] | None = None) -> int:
     bad_steps = args.max_steps is not None and args.max_steps < 1
     if args.seeds < 1 or args.first_seed < 0 or args.workers < 0 or bad_steps:
         parser.error("--seeds and --max-steps must be >= 1, --first-seed and --workers >= 0")
+    if args.recipe == "positions":
+        from hnn_pl.experiments import positions
+
+        return positions.run(args, f"{parser.prog} " + " ".join(argv or sys.argv[2:]), _machine())
     if args.tasks is None:
         args.tasks = tasks.TRAJ_TASKS if args.recipe == "traj" else tasks.DEFAULT_TASKS
     out = Path(args.out) if args.out else _new_run_dir(args.recipe) / "RESULTS.md"
@@ -589,13 +605,11 @@ def main(argv: list[str] | None = None) -> int:
         earlier = old["meta"].pop("earlier_calls", []) + [old["meta"]]
         earlier = _contributing(earlier, records)
     kept = len(records)
-    import torch
 
     meta = {
         "id": uuid.uuid4().hex,
         "date": time.strftime("%Y-%m-%d"),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
-        f"{torch.backends.cpu.get_cpu_capability()} kernels, Python {platform.python_version()}",
+        "machine": _machine(),
         "command": f"`{parser.prog} " + " ".join(argv or sys.argv[2:]) + "`",
         "workers": max(args.workers, 1),
         "recipe": args.recipe,

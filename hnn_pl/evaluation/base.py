@@ -38,6 +38,9 @@ class Rollout:
     ``floors``: the true system's own errors under the protocol (state models).
     ``f_true``/``f_pred (T, B, D)``: the true field and ``f_θ`` on the true states
     (state models whose data gives one). ``n_groups``: groups of the "±".
+    ``positions``: ``k`` when the starts were inferred from observed positions (the
+    momenta are the model's own gauge): the scores are then the gauge-invariant ones on
+    the first ``k`` coordinates, and ``e_pred`` the true energy from ``(q, q̇)``.
     """
 
     t: Tensor
@@ -59,6 +62,7 @@ class Rollout:
     f_true: Tensor | None = None
     f_pred: Tensor | None = None
     n_groups: int = 5
+    positions: int | None = None
 
     #: the fields indexed ``[:, row]``
     PER_ROW = ("y_true", "y_pred", "e_true", "e_pred", "h_pred", "z_true", "z_pred")

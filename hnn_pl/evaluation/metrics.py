@@ -121,6 +121,13 @@ def position_mse(y_pred: Tensor, q_true: Tensor, k: int) -> Tensor:
     return _mean_where_observed((y_pred[..., :k] - q) ** 2, q)
 
 
+def position_mse_per_trajectory(y_pred: Tensor, q_true: Tensor, k: int) -> Tensor:
+    """:func:`position_mse` per trajectory: ``mean_{t,i<k}`` over the observed entries,
+    ``(B,)``."""
+    q = q_true[..., :k]
+    return _mean_where_observed((y_pred[..., :k] - q) ** 2, q, (0, 2))
+
+
 def position_valid_time(
     t: Tensor, y_pred: Tensor, q_true: Tensor, k: int, threshold: float = 0.025
 ) -> Tensor:
@@ -192,6 +199,22 @@ _ON_ROWS = {
 }
 
 
+#: the metrics of :func:`score` for a rollout from observed positions (``r.positions``):
+#: the gauge-invariant ones, on the first ``k`` coordinates
+_ON_POSITIONS = {
+    "energy_mse": lambda r: energy_mse_per_trajectory(r).mean(),
+    "position_mse": lambda r: position_mse(r.y_pred, r.y_true, r.positions),
+    "motion_error": lambda r: motion_error(
+        r.y_pred[..., : r.positions], r.y_true[..., : r.positions]
+    ),
+    "position_valid_time": lambda r: position_valid_time(
+        r.t, r.y_pred, r.y_true, r.positions
+    ).mean(),
+    "energy_drift_slope": lambda r: energy_drift_slope(r),
+    "true_energy_drift_slope": lambda r: energy_drift_slope(r, r.e_true),
+}
+
+
 def report(r: Rollout) -> dict[str, float]:
     """What a report adds to :func:`score`: the "±" ``energy_mse_pm`` of the rows that did
     not diverge (``nan`` with fewer of them than ``r.n_groups``), ``n_trajectories``
@@ -210,7 +233,10 @@ def score(r: Rollout) -> dict[str, float]:
     - ``energy_mse``, ``energy_drift_slope`` and
       ``true_energy_drift_slope`` (the truth's): only when there is an energy;
     - ``state_mse`` ``mean_{t,b,d} (y_true − y_pred)²``, ``motion_error``,
-      ``valid_time`` (mean of :func:`valid_time`);
+      ``valid_time`` (mean of :func:`valid_time`); for a rollout from observed positions
+      (``r.positions``) instead ``position_mse``, ``motion_error`` and
+      ``position_valid_time`` on the positions, and ``energy_mse`` of the true energy
+      from ``(q, q̇)`` (gauge-invariant);
     - ``conserved_drift`` (HNN); ``field_error`` (when the data gives the true field;
       over every row: it is read on the true states);
     - ``floor_{integrator,chaos}_{energy,state}_mse``: the part of an error that is not
@@ -222,11 +248,12 @@ def score(r: Rollout) -> dict[str, float]:
     on_truth = {} if r.f_true is None else {"field_error": float(field_error(r))}
     if diverged:
         r = r.rows(r.status == 0)
-    names = [n for n in _ON_ROWS if r.e_true is not None or "energy" not in n]
+    table = _ON_ROWS if r.positions is None else _ON_POSITIONS
+    names = [n for n in table if r.e_true is not None or "energy" not in n]
     if r.y_true.shape[1] == 0:
         names += ["conserved_drift"] * (r.h_pred is not None)
         return {**dict.fromkeys(names, math.nan), "diverged_rows": float(diverged), **on_truth}
-    out = {name: _ON_ROWS[name](r) for name in names}
+    out = {name: table[name](r) for name in names}
     out["diverged_rows"] = diverged
     if r.h_pred is not None:
         out["conserved_drift"] = conserved_drift(r)

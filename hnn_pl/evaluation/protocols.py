@@ -57,6 +57,12 @@ class Protocol(_Fields):
         probe_encoder: pixel: ``"own"``, or ``"hnn"``: the probe is fitted on, and the
             decoded frames re-encoded by, the encoder of an HNN passed to
             :func:`hnn_pl.rollouts.run` (``probe_model``; the model's own without one).
+        observer_samples: state models: infer each start from the first
+            ``observer_samples`` observed (noisy) positions of its held-out trajectory
+            (:func:`~hnn_pl.evaluation.observer.observe`) instead of taking the true
+            state, and score what is invariant under the momenta's gauge: positions
+            and the true energy from ``(q, q̇)``; ``None``: the true start, or
+            :data:`POSITION_SAMPLES` when the data observe positions alone.
     """
 
     t_end: float | None = 20.0
@@ -75,6 +81,7 @@ class Protocol(_Fields):
     energy_coef: float | None = None
     reencode: bool = False
     probe_encoder: str = "own"
+    observer_samples: int | None = None
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -110,6 +117,10 @@ class Protocol(_Fields):
         ``solver``: a rollout protocol always integrates with its own ``method``."""
         return lambda model: self.run(model, dm, floors=False)
 
+
+#: the observed positions a start is inferred from when the data observe positions alone
+#: (the first second of the paper's spring and pendulum draws)
+POSITION_SAMPLES = 15
 
 #: scipy's default ``atol``, which sets a reference protocol's accuracy when it leaves
 #: ``atol`` unset (quirk 5)

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from hnn_pl.evaluation.base import Rollout, eval_mode, integrate_field, learned_h
-from hnn_pl.evaluation.metrics import observed_mean, split_loss
+from hnn_pl.evaluation.metrics import observed_mean, split_loss, velocity_energy
 from hnn_pl.integrate import odeint
 
 #: size of the start perturbation that measures the chaos floor
@@ -82,26 +82,81 @@ class StateView:
         device = _device(self.model)
         t, y_true = dm.rollout_target(p.t_end, p.n_points)
         y_true = y_true[:, : p.max_starts].to(device)
+        n_obs = observer_samples(p, dm)
+        y0 = y_true[0] if n_obs is None else observed_starts(self.model, dm, n_obs, p)
+        y0 = y0[: y_true.shape[1]].to(device)
         sol, field = integrate_field(
-            self.field, y_true[0], t.to(device), dtype=p.dtype, **p.solver_kwargs()
+            self.field, y0, t.to(device), dtype=p.dtype, **p.solver_kwargs()
         )
         y_pred = sol.y
         y_true = y_true.to(y_pred.dtype)
         energy = self.energy(dm)
         r = Rollout(t.to(y_pred.dtype), y_true, y_pred, status=sol.status, t_stop=sol.t_stop)
         r.n_groups = p.n_groups
+        if n_obs is not None:
+            r.positions = y_true.shape[-1] // 2
         if energy is not None:
-            r.e_true, r.e_pred = energy(y_true), energy(y_pred)
+            r.e_true = energy(y_true)
+            r.e_pred = (
+                energy(y_pred) if n_obs is None else velocity_energy(dm.system, field, y_pred)
+            )
         r.h_pred = learned_h(field, y_pred)
         if r.h_pred is not None:
             r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
         if floors:
             r.floors = error_floors(dm, r.t, y_true, p)
+            if n_obs is not None and r.floors:
+                r.floors["observer_position"] = observer_floor(dm, r.t, y_true, n_obs, p)
         f_true = dm.true_field(r.t, y_true) if callable(getattr(dm, "true_field", None)) else None
-        if f_true is not None:
+        if f_true is not None and n_obs is None:  # a field in another gauge has no true twin
             r.f_true = f_true.to(y_pred)
             r.f_pred = field.vector_field(None, y_true.flatten(0, 1)).reshape(y_true.shape)
         return r
+
+
+def observer_samples(p: Any, dm: Any) -> int | None:
+    """The observed positions a protocol's starts are inferred from: its
+    ``observer_samples``, else ``POSITION_SAMPLES`` for data of positions alone, else
+    ``None`` (the true starts)."""
+    from hnn_pl.evaluation.protocols import POSITION_SAMPLES
+
+    n = getattr(p, "observer_samples", None)
+    if n is None and getattr(dm, "observe", "states") == "positions":
+        n = POSITION_SAMPLES
+    return n
+
+
+def observed_starts(model: Any, dm: Any, n: int, p: Any) -> Tensor:
+    """Each held-out trajectory's start ``(B, 2k)`` float64 inferred by
+    :func:`~hnn_pl.evaluation.observer.infer_starts` from the first ``n`` observed
+    positions of its trajectory (``dm``'s ``obs_*_test`` tables as observed, before any
+    thinning: the held-out trajectory's first samples, noise included), in the field's
+    own gauge. Trajectories shorter than ``n`` give all their samples (``M`` = the
+    shortest)."""
+    from hnn_pl.evaluation.observer import infer_starts
+
+    raw = getattr(dm, "data", None) or {}
+    q, t, traj = (
+        raw.get(f"obs_{k}_test", getattr(dm, f"obs_{k}_test")) for k in ("y", "t", "traj")
+    )
+    k = int(dm.state_dim) // 2
+    counts = torch.bincount(traj)
+    m = int(min(n, int(counts.min())))
+    first = torch.cumsum(counts, 0) - counts
+    rows = first[:, None] + torch.arange(m)
+    return infer_starts(model, t[rows].double(), q[rows][..., :k].double(), method="rk4")
+
+
+def observer_floor(dm: Any, t: Tensor, y_true: Tensor, n: int, p: Any) -> Tensor:
+    """The position error the observer leaves with the true field, per trajectory
+    ``(B,)``: ``mean_{t,i<k} (q(t) − q_true(t))²`` of the true system from the starts
+    :func:`observed_starts` infers with the true field (``dm.system``) from the same
+    ``n`` noisy positions: what no model can beat under this protocol."""
+    from hnn_pl.evaluation.metrics import position_mse_per_trajectory
+
+    y0 = observed_starts(dm.system, dm, n, p)[: y_true.shape[1]]
+    y = dm.system.trajectory(y0.to(torch.float64), t.to(torch.float64))
+    return position_mse_per_trajectory(y, y_true.double(), y_true.shape[-1] // 2)
 
 
 def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Any) -> dict[str, Tensor]:
