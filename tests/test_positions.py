@@ -1,0 +1,139 @@
+"""Positions only: data of what a camera or an encoder records, latent momenta, the
+observer protocol's scores."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hnn_pl.data import RecordingData, SimulatedData
+from hnn_pl.data.differences import position_pairs, smoothed_velocity
+from hnn_pl.data.recording import load_recording
+from hnn_pl.models import HNN
+from hnn_pl.models.base import with_momenta
+from hnn_pl.systems import MassSpring, Pendulum
+
+F64 = torch.float64
+
+
+def test_smoothed_velocity_is_exact_for_quadratics_at_uneven_times():
+    g = torch.Generator().manual_seed(0)
+    t = torch.cat([torch.rand(12, generator=g, dtype=F64).sort().values * 3, torch.arange(4.0)])
+    t = t.to(F64)
+    traj = torch.tensor([0] * 12 + [1] * 4)
+    q = torch.stack([1 + 2 * t - 0.7 * t**2, 3 * t - 0.1 * t**2], -1)
+    exact = torch.stack([2 - 1.4 * t, 3 - 0.2 * t], -1)
+    torch.testing.assert_close(smoothed_velocity(q, t, traj), exact, rtol=0, atol=1e-10)
+
+
+def test_position_pairs_are_central_differences_of_positions_then_velocities():
+    t = torch.linspace(0, 1, 11, dtype=F64)
+    q = (t**2)[:, None]
+    x, dx = position_pairs(q, t, torch.zeros(11, dtype=torch.long))
+    torch.testing.assert_close(x[1:-1, 1], 2 * t[1:-1], rtol=0, atol=1e-12)  # v = 2t inside
+    torch.testing.assert_close(dx[2:-2, 1], torch.full((7,), 2.0, dtype=F64), rtol=0, atol=1e-9)
+    torch.testing.assert_close(dx[:, 0], x[:, 1])
+
+
+def test_simulated_positions_are_the_states_draws_without_momenta(tmp_path):
+    kw = dict(system=Pendulum(), n_trajectories=6, n_points=20, seed=3, cache_dir=str(tmp_path))
+    states = SimulatedData(**kw, window=4)
+    positions = SimulatedData(**kw, window=4, observe="positions")
+    states.setup("fit"), positions.setup("fit")
+    assert positions.obs_y_train.shape == (60, 1)
+    torch.testing.assert_close(positions.obs_y_train, states.obs_y_train[:, :1])
+    torch.testing.assert_close(positions.test_y, states.test_y)  # the truth keeps its momenta
+    assert positions.state_dim == 2 and positions.x_train.shape == (60, 2)
+
+
+@pytest.mark.parametrize("header", ["trajectory,time,q", "trajectory,time,q1"])
+def test_a_positions_csv_round_trips(tmp_path, header):
+    path = tmp_path / "camera.csv"
+    rows = [(b, 0.1 * i + 5.0, math.sin(0.3 * i + b)) for b in range(3) for i in range(8)]
+    path.write_text(header + "\n" + "".join(f"{b},{t!r},{q!r}\n" for b, t, q in rows))
+    rec = load_recording(path)
+    assert rec.positions and rec.state_dim == 2 and rec.y.shape == (24, 1)
+    expected = torch.tensor([q for _, _, q in rows], dtype=F64)[:, None]
+    torch.testing.assert_close(rec.y, expected, rtol=0, atol=0)
+    torch.testing.assert_close(rec.t0, torch.full((3,), 5.0, dtype=F64))
+    dm = RecordingData(path=str(path), system=Pendulum(), window=4)
+    dm.setup("fit")
+    assert dm.observe == "positions" and dm.hparams["observe"] == "positions"
+    assert dm.state_dim == 2 and dm.obs_y_train.shape[-1] == 1 and not dm.has_energy
+
+
+def test_a_positions_npz_with_q_reads_as_positions(tmp_path):
+    path = tmp_path / "encoder.npz"
+    q = np.stack([np.linspace(0, 1, 10), np.linspace(1, 0, 10)], -1)
+    np.savez(path, trajectory=np.repeat([4, 9], 5), t=np.tile(np.arange(5.0), 2), q=q)
+    rec = load_recording(path)
+    assert rec.positions and rec.state_dim == 4
+    torch.testing.assert_close(rec.y, torch.from_numpy(q))
+
+
+def test_states_headers_q_p_and_q1_p1_read_alike(tmp_path):
+    body = "0,0,1,2\n0,1,3,4\n"
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text("trajectory,time,q,p\n" + body)
+    b.write_text("trajectory,time,q1,p1\n" + body)
+    ra, rb = load_recording(a), load_recording(b)
+    assert not ra.positions and ra.state_dim == 2
+    torch.testing.assert_close(ra.y, rb.y)
+
+
+def test_latent_momenta_start_at_the_fitted_velocity():
+    t = torch.linspace(0, 1, 9, dtype=F64)
+    q = (3 * t + t**2)[:, None]
+    states = with_momenta(q, t, torch.zeros(9, dtype=torch.long), 2)
+    torch.testing.assert_close(states[:, 1], 3 + 2 * t, rtol=0, atol=1e-10)
+    assert with_momenta(states, t, torch.zeros(9, dtype=torch.long), 2) is states
+
+
+def _windows(dm):
+    y, t, index = dm._windowed["train"]
+    return y[:8], t[:8], index[:8]
+
+
+def test_positions_windows_train_the_momenta_and_compare_positions_only(tmp_path):
+    dm = SimulatedData(
+        system=MassSpring(),
+        n_trajectories=4,
+        n_points=12,
+        seed=0,
+        dtype="float64",
+        window=4,
+        observe="positions",
+        cache_dir=str(tmp_path),
+    )
+    dm.setup("fit")
+    model = HNN(objective="trajectory", learned_states="sample", continuity_weight=1.0).double()
+    model.init_states(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train)
+    assert model.states.shape == (len(dm.obs_y_train), 2)
+    parts = model.window_loss(_windows(dm))
+    parts["loss"].backward()
+    assert model.states.grad[:, 1].abs().sum() > 0  # the momenta learn
+    y, t, index = _windows(dm)
+    pred = model.integrate_windows(model.states[index[:, 0]], t)
+    fit = ((pred[:, 1:, :1] - y[:, 1:]) ** 2).mean()
+    torch.testing.assert_close(parts["fit"], fit)
+
+
+def test_positions_refuse_windows_without_learned_states(tmp_path):
+    from lightning import Trainer
+
+    dm = SimulatedData(
+        system=MassSpring(),
+        n_trajectories=4,
+        n_points=12,
+        seed=0,
+        window=4,
+        observe="positions",
+        cache_dir=str(tmp_path),
+    )
+    model = HNN(objective="trajectory")
+    trainer = Trainer(max_steps=1, logger=False, enable_checkpointing=False, barebones=True)
+    with pytest.raises(ValueError, match="learned_states: sample"):
+        trainer.fit(model, dm)
