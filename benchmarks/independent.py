@@ -16,8 +16,8 @@ import sys
 
 from common import main, quiet_cli, table
 
-from hnn_pl import tasks
 from hnn_pl.evaluation import ReferenceProtocol, evaluate, task_protocol
+from hnn_pl.experiments.paper import PAPER
 
 TITLE = "Independent evaluation (true energy)"
 INDEPENDENT = ReferenceProtocol(atol=1e-12)
@@ -32,9 +32,7 @@ def run(quick: bool = False) -> str:
         for model in ("hnn", "baseline"):
             indep, paper = [], []
             for seed in range(1 if quick else 10):
-                cli = quiet_cli(
-                    tasks.get(task).config(model, "fast"), seed, 1, 20 if quick else None
-                )
+                cli = quiet_cli(PAPER[task].config(model, "fast"), seed, 1, 20 if quick else None)
                 cli.trainer.fit(cli.model, cli.datamodule)
                 indep.append(evaluate(cli.model, cli.datamodule, INDEPENDENT)[0])
                 paper.append(

@@ -17,7 +17,8 @@ import sys
 import torch
 from common import main, measure, quiet_cli, table
 
-from hnn_pl import evaluation, rollout, tasks
+from hnn_pl import evaluation, rollout
+from hnn_pl.experiments.paper import PAPER
 
 TITLE = "Implicit midpoint against dopri5 on learned fields"
 TASKS = ("spring", "pendulum", "two_body", "three_body")
@@ -31,7 +32,7 @@ MARGIN = 0.9
 
 
 def trained(task: str, quick: bool):
-    cli = quiet_cli(tasks.get(task).config("hnn", "fast"), 0, 1, 20 if quick else None)
+    cli = quiet_cli(PAPER[task].config("hnn", "fast"), 0, 1, 20 if quick else None)
     cli.trainer.fit(cli.model, cli.datamodule)
     return cli.model, cli.datamodule
 

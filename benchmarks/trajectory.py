@@ -11,7 +11,7 @@ recording would otherwise do), and the trajectory recipe on the states only
 true-energy evaluation (:mod:`independent`) and the clean protocol.
 
 Time to accuracy: the energy MSE on the paper's protocol every few steps
-(:class:`hnn_pl.commands.tta.TimeToAccuracy` history, its scoring excluded) against
+(:class:`hnn_pl.experiments.tta.TimeToAccuracy` history, its scoring excluded) against
 training seconds, median over seeds, all objectives on the same axes
 (``docs/traj_tta.png``).
 
@@ -39,16 +39,19 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import torch
 from common import main, measure, ms, quiet_cli, table
 
-from hnn_pl import tasks
 from hnn_pl.commands import reproduce
-from hnn_pl.commands.tta import TimeToAccuracy
+from hnn_pl.commands.cli import quiet_run
 from hnn_pl.data.differences import central_differences
 from hnn_pl.evaluation import evaluate_task
+from hnn_pl.experiments.collect import run_one
+from hnn_pl.experiments.paper import PAPER
+from hnn_pl.experiments.tta import TimeToAccuracy
 
 TITLE = "Learning from observed states (trajectory objective)"
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,20 +65,22 @@ JOBS = int(os.environ.get("HNN_PL_TRAJ_JOBS", "1"))
 #: field evaluations per step of each window method (implicit midpoint: its typical
 #: fixed-point iterations are data-dependent, so it is not in the cost table)
 EVALS = {"euler": 1, "rk4": 4, "leapfrog": 2}
+#: one run as ``reproduce`` makes it (picklable, for the process pool)
+RUN_ONE = partial(run_one, build=quiet_run)
 
 
 def fit(task: str, seed: int, quick: bool, central: bool) -> dict:
     """The derivative fast recipe's HNN on ``task`` (``central``: its derivative targets
     replaced by central differences of the same noisy states), scored as ``reproduce``
     scores the trajectory runs; with its time-to-accuracy history."""
-    cli = quiet_cli(tasks.get(task).config("hnn", "fast"), seed, 1, 20 if quick else None)
+    cli = quiet_cli(PAPER[task].config("hnn", "fast"), seed, 1, 20 if quick else None)
     dm = cli.datamodule
     dm.prepare_data()
     dm.setup("fit")
     if central:
         assert torch.equal(dm.obs_y_train, dm.x_train)  # the same noisy states
         dm.dx_train = central_differences(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train)
-    tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every["fast"])
+    tta = TimeToAccuracy(task, every_n_steps=PAPER[task].tta_every["fast"])
     cli.trainer.callbacks.append(tta)
     t0 = time.perf_counter()
     cli.trainer.fit(cli.model, dm)
@@ -126,7 +131,7 @@ def accuracy(quick: bool) -> tuple[str, dict]:
                 half = [("--data.init_args.keep_fraction=0.5",)] * n
                 args = ([task] * n, ["hnn"] * n, seeds, [None] * n, ["traj"] * n, half)
                 runs[task, "half the samples (traj recipe)"] = _raise_failed(
-                    list(pmap(reproduce.run_one, *args))
+                    list(pmap(RUN_ONE, *args))
                 )
     rows = []
     for (task, name), rs in runs.items():
@@ -180,7 +185,7 @@ def recording(quick: bool) -> str:
         for model, label in models.items():
             for name, recipe, over in DIFFERENCES:
                 args = (["real_pendulum"] * n, [model] * n, range(n), steps, [recipe] * n)
-                rs = _raise_failed(list(pmap(reproduce.run_one, *args, [over] * n)))
+                rs = _raise_failed(list(pmap(RUN_ONE, *args, [over] * n)))
                 rows.append(_recording_row(label, name, rs))
             states = [r for r in traj if r["model"] == model]
             rows.append(_recording_row(label, "the recording's states only (traj recipe)", states))
@@ -229,7 +234,7 @@ def figure(runs: dict, quick: bool) -> str:
             secs = [statistics.median(r["tta_history"][i][1] for r in rs) for i in range(n)]
             err = [statistics.median(r["tta_history"][i][2] for r in rs) for i in range(n)]
             ax.loglog(secs, err, marker=".", label=name)
-        ax.axhline(tasks.get(task).published["hnn"].energy_mse, color="k", lw=0.8, ls="--")
+        ax.axhline(PAPER[task].published["hnn"].energy_mse, color="k", lw=0.8, ls="--")
         ax.set(
             title=task, xlabel="training seconds (1 thread)", ylabel="energy MSE, paper's protocol"
         )

@@ -1,11 +1,11 @@
 """Time to accuracy: training seconds from the start of ``Trainer.fit`` until the HNN
-first meets the joint criterion of :class:`hnn_pl.commands.tta.TimeToAccuracy` (energy MSE
+first meets the joint criterion of :class:`hnn_pl.experiments.tta.TimeToAccuracy` (energy MSE
 on the paper's protocol at the published value *and* clean state MSE at the paper
-recipe's median, ``tasks.get(task).paper_motion``), per task and recipe, over seeds
+recipe's median, ``PAPER[task].paper_motion``), per task and recipe, over seeds
 (each seed draws its own data), with 1 and 2 torch threads.
 
 Each run is the bundled config as ``fit`` runs it (logger, checkpoints, progress bar
-and rollout callbacks off) plus :class:`hnn_pl.commands.tta.TimeToAccuracy` with
+and rollout callbacks off) plus :class:`hnn_pl.experiments.tta.TimeToAccuracy` with
 ``stop=True``; the callback's own scoring is excluded from the time.
 """
 
@@ -19,8 +19,8 @@ import time
 import torch
 from common import main, quiet_cli, table
 
-from hnn_pl import tasks
-from hnn_pl.commands.tta import TimeToAccuracy
+from hnn_pl.experiments.paper import PAPER
+from hnn_pl.experiments.tta import TimeToAccuracy
 
 TITLE = "Time to accuracy"
 STATE_TASKS = ("spring", "pendulum", "real_pendulum", "two_body", "three_body")
@@ -30,8 +30,8 @@ REFERENCE_S = {"spring": 38.5, "pendulum": 39.1, "two_body": 55.8, "real_pendulu
 
 def fit_until(task: str, recipe: str, seed: int, threads: int, max_steps=None) -> dict:
     """One HNN fit with a stopping :class:`TimeToAccuracy`: its ``reached`` and timings."""
-    cli = quiet_cli(tasks.get(task).config("hnn", recipe), seed, threads, max_steps)
-    tta = TimeToAccuracy(task, every_n_steps=tasks.get(task).tta_every[recipe], stop=True)
+    cli = quiet_cli(PAPER[task].config("hnn", recipe), seed, threads, max_steps)
+    tta = TimeToAccuracy(task, every_n_steps=PAPER[task].tta_every[recipe], stop=True)
     cli.trainer.callbacks.append(tta)
     cli.datamodule.prepare_data()
     t0 = time.perf_counter()
@@ -58,8 +58,8 @@ def summary(runs: list[dict]) -> list[str]:
 def run(quick: bool = False, recipes=("fast", "paper"), thread_counts=(1, 2)) -> str:
     rows = []
     for task in STATE_TASKS[:1] if quick else STATE_TASKS:
-        target = f"{tasks.get(task).published['hnn'].energy_mse:.3g}"
-        paper = tasks.get(task).paper_motion
+        target = f"{PAPER[task].published['hnn'].energy_mse:.3g}"
+        paper = PAPER[task].paper_motion
         target += f" / {paper.state_mse:.3g}" if paper else " / —"
         for recipe in recipes:
             seeds = 1 if quick else (10 if recipe == "fast" else 3)
@@ -80,7 +80,7 @@ def run(quick: bool = False, recipes=("fast", "paper"), thread_counts=(1, 2)) ->
         "draw. Time: training seconds from `Trainer.fit`'s start (data set-up included) "
         "to the first check at or below the published HNN energy MSE on the paper's "
         "protocol and at or below the paper recipe's median clean state MSE (checks "
-        "every `tasks.get(task).tta_every[recipe]` optimiser steps, energy scored by "
+        "every `PAPER[task].tta_every[recipe]` optimiser steps, energy scored by "
         "float64 batched dopri5 at the protocol's tolerances, state by the clean "
         "protocol; scoring time excluded). *never*: a seed that did not reach it "
         "within the recipe's steps."

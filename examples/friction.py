@@ -21,8 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from hnn_pl import rollout  # noqa: E402
-from hnn_pl.commands.cli import cli_main  # noqa: E402
-from hnn_pl.commands.reproduce import run_one  # noqa: E402
+from hnn_pl.commands.cli import cli_main, quiet_run  # noqa: E402
+from hnn_pl.experiments.collect import run_one  # noqa: E402
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 MODELS = {"baseline": "baseline", "hnn": "HNN", "dissipative": "dissipative HNN"}
@@ -40,7 +40,10 @@ def table() -> str:
     for diff in DIFFERENCES:
         for model in MODELS:
             override = (f"--data.init_args.differences={diff}",)
-            runs = [run_one("real_pendulum", model, s, overrides=override) for s in SEEDS]
+            runs = [
+                run_one("real_pendulum", model, s, overrides=override, build=quiet_run)
+                for s in SEEDS
+            ]
             bad = [r["error"] for r in runs if "error" in r]
             if bad:
                 raise RuntimeError(bad[0])

@@ -4,7 +4,7 @@ The reference (``experiment-pixels/data.py``) renders gym's pyglet viewer, keeps
 minus green, crops and resizes with ``scipy.misc.imresize``; none of that runs on a
 current stack. :func:`render_pendulum` draws the same scene analytically, batched and
 anti-aliased by pixel coverage; :func:`frame_strip` tiles frames
-(``python -m hnn_pl.commands.report`` draws ``docs/pixel_frames.png`` with it).
+(``python -m hnn_pl.experiments.report`` draws ``docs/pixel_frames.png`` with it).
 
 Scene (gym ``PendulumEnv.render``, Pendulum-v0 era)::
 

@@ -591,7 +591,7 @@ def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
 
 
 def test_stability_md_lists_every_fault_with_a_test_that_exists():
-    from hnn_pl.commands.stress import FAULTS, faults_section
+    from hnn_pl.experiments.stress import FAULTS, faults_section
 
     assert faults_section() in (ROOT / "STABILITY.md").read_text()
     sources = {p.name: p.read_text() for p in (ROOT / "tests").glob("test_*.py")}

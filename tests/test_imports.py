@@ -1,7 +1,9 @@
-"""The package's import graph: no circle anywhere, and the library never imports the
-commands (``hnn_pl/commands/``; ``hnn_pl/__main__.py`` is their entry point). Every
-``import`` counts, at module level or inside a function: a function-level import is
-still a dependency."""
+"""The package's import graph: no circle anywhere, and three layers: the library, the
+experiments that reproduce the paper on it (``hnn_pl/experiments/``), and the commands
+(``hnn_pl/commands/``; ``hnn_pl/__main__.py`` is their entry point). The library imports
+neither of the others, the experiments never import the commands. Every ``import``
+counts, at module level or inside a function: a function-level import is still a
+dependency."""
 
 from __future__ import annotations
 
@@ -68,16 +70,35 @@ def test_no_import_circle():
     assert _cycle(_graph()) is None
 
 
-def test_the_library_never_imports_the_commands():
-    offenders = sorted(
-        f"{m} -> {d}"
-        for m, deps in _graph().items()
-        if not m.startswith(("hnn_pl.commands", "hnn_pl.__main__"))
-        for d in deps
-        if d.startswith("hnn_pl.commands")
-    )
-    assert offenders == []
+COMMANDS = ("hnn_pl.commands", "hnn_pl.__main__")
+EXPERIMENTS = ("hnn_pl.experiments",)
 
 
-def test_tasks_is_plain_data():
-    assert _graph()["hnn_pl.tasks"] == set()
+def _in(module: str, packages: tuple[str, ...]) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in packages)
+
+
+def _offenders(importers: list[str], imported: tuple[str, ...]) -> list[str]:
+    """``m -> d`` for every module ``m`` of ``importers`` that imports a module ``d`` of
+    the packages ``imported``."""
+    graph = _graph()
+    return sorted(f"{m} -> {d}" for m in importers for d in graph[m] if _in(d, imported))
+
+
+def test_the_library_never_imports_the_commands_or_the_experiments():
+    library = [m for m in _graph() if not _in(m, COMMANDS + EXPERIMENTS)]
+    assert {"hnn_pl", "hnn_pl.tasks", "hnn_pl.evaluation.metrics"} <= set(library)
+    assert _offenders(library, COMMANDS + EXPERIMENTS) == []
+
+
+def test_the_experiments_never_import_the_commands():
+    experiments = [m for m in _graph() if _in(m, EXPERIMENTS)]
+    assert "hnn_pl.experiments.collect" in experiments
+    assert _offenders(experiments, ("hnn_pl.experiments.tta",))  # the check sees imports
+    assert _offenders(experiments, COMMANDS) == []
+
+
+def test_tasks_and_the_paper_s_table_are_plain_data():
+    graph = _graph()
+    assert graph["hnn_pl.tasks"] == set()
+    assert graph["hnn_pl.experiments.paper"] == set()

@@ -10,8 +10,8 @@ import torch
 
 from hnn_pl import evaluation
 from hnn_pl.commands.cli import QUIET_TRAINER
-from hnn_pl.commands.tta import TimeToAccuracy
 from hnn_pl.data import SimulatedData
+from hnn_pl.experiments.tta import TimeToAccuracy
 from hnn_pl.models import HNN, Baseline
 from hnn_pl.systems import MassSpring
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from hnn_pl.commands.report import save_png
+from hnn_pl.experiments.report import save_png
 from hnn_pl.nets.autoencoder import PixelDecoder, PixelEncoder
 from hnn_pl.render import (
     GYM_ARROW_RING,

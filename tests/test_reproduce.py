@@ -10,6 +10,7 @@ import torch
 
 from hnn_pl.commands import reproduce
 from hnn_pl.commands.cli_errors import CLIError
+from hnn_pl.experiments.summary import summarize
 
 
 def _run(tmp_path, monkeypatch, extra=()):
@@ -182,7 +183,7 @@ def test_no_tta_skips_the_checks_and_says_so(tmp_path, monkeypatch):
     )
     assert row.rstrip("| ").endswith("not measured"), row
     timed = {**run, "seed": 1, "tta_measured": True, "tta": {"seconds": 2.5}}
-    (summary,) = reproduce.summarize([run, timed])
+    (summary,) = summarize([run, timed])
     assert summary["tta"] == "2.5 (2.5) s, 1/1"
-    (summary,) = reproduce.summarize([run, {**timed, "tta": None}])
+    (summary,) = summarize([run, {**timed, "tta": None}])
     assert summary["tta"] == "not reached (0/1)"

@@ -16,6 +16,7 @@ from hnn_pl.commands.cli import cli_main
 from hnn_pl.commands.config_paths import bundled_configs, config_chain, resolve_config
 from hnn_pl.data import SimulatedData
 from hnn_pl.evaluation import Protocol, ReferenceProtocol
+from hnn_pl.experiments import paper
 from hnn_pl.models import HNN, Baseline
 from hnn_pl.systems import MassSpring
 
@@ -24,25 +25,28 @@ PACKAGE = Path(hnn_pl.__file__).parent
 
 def test_every_task_names_its_configs_and_published_numbers_once():
     configs = set(bundled_configs())
-    for task in tasks.TASKS.values():
-        for recipe in tasks.RECIPES:
-            for model in task.models_for(recipe):
-                assert task.config(model, recipe) in configs
+    assert list(paper.PAPER) == list(tasks.TASKS)  # the paper's table: every task, in order
+    for row in paper.PAPER.values():
+        for recipe in paper.RECIPES:
+            for model in row.models_for(recipe):
+                assert row.config(model, recipe) in configs
         for model in ("baseline", "hnn"):
-            assert task.published[model].energy_mse > 0
+            assert row.published[model].energy_mse > 0
+    for task in tasks.TASKS.values():
         assert isinstance(evaluation.task_protocol(task.name, "clean"), Protocol)
         want = Protocol if task.kind == "pixel" else ReferenceProtocol
         assert isinstance(evaluation.task_protocol(task.name, "reference"), want)
-    assert tasks.get("spring").config("baseline", "fast") == "spring_fast_baseline.yaml"
-    real = tasks.get("real_pendulum").config("dissipative", "fast")
+    assert paper.get("spring").config("baseline", "fast") == "spring_fast_baseline.yaml"
+    real = paper.get("real_pendulum").config("dissipative", "fast")
     assert real == "real_pendulum_fast_dissipative.yaml"
-    assert tasks.get("spring").config("hnn", "traj") == "spring_traj.yaml"
+    assert paper.get("spring").config("hnn", "traj") == "spring_traj.yaml"
     with pytest.raises(ValueError, match="model in"):
-        tasks.get("spring").config("dissipative")
+        paper.get("spring").config("dissipative")
     with pytest.raises(ValueError, match="model in"):
-        tasks.get("three_body").config("hnn", "traj")
-    with pytest.raises(KeyError, match="known tasks"):
-        tasks.get("spring_mass")
+        paper.get("three_body").config("hnn", "traj")
+    for registry in (tasks, paper):
+        with pytest.raises(KeyError, match="known tasks"):
+            registry.get("spring_mass")
 
 
 def test_no_task_name_branches_outside_the_registry():

@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import pytest
 
-from hnn_pl.commands import stress
+from hnn_pl.commands import stress as stress_command
+from hnn_pl.experiments import stress
 from hnn_pl.systems import MassSpring, Pendulum
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("stress") / "S.md"
-    assert stress.main(["--quick", "--out", str(out)]) == 0
+    assert stress_command.main(["--quick", "--out", str(out)]) == 0
     return out
 
 

@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from hnn_pl import evaluation, tasks
+from hnn_pl import evaluation
 from hnn_pl.commands.cli import cli_main
+from hnn_pl.experiments import paper
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -34,7 +35,7 @@ def test_the_vector_field_is_J_grad_H_by_autograd(double_well):
 def test_a_system_from_h_alone_trains_and_the_hnn_beats_its_baseline(double_well, tmp_path):
     energy = {}
     for name in ("hnn", "baseline"):
-        config = tasks.get("spring").config(name, "fast")
+        config = paper.get("spring").config(name, "fast")
         args = [
             f"--config={config}",
             "--data.init_args.system=double_well.DoubleWell",

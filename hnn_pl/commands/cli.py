@@ -345,3 +345,13 @@ def cli_main(args: ArgsType = None, run: bool = True, save_config: bool = True) 
         trainer_defaults=TRAINER_DEFAULTS,
         auto_configure_optimizers=False,
     )
+
+
+def quiet_run(
+    config: str, options: list[str] | tuple[str, ...] = (), save_config: bool = False
+) -> HNNCLI:
+    """``config`` plus ``options`` built by :func:`cli_main` as a quiet run
+    (:data:`QUIET_TRAINER`), not started: how the experiments build their runs
+    (:class:`hnn_pl.experiments.collect.Build`; they never import this package)."""
+    args = ["--config", config, *quiet_args(), *options]
+    return cli_main(args, run=False, save_config=save_config)

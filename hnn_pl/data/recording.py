@@ -528,13 +528,7 @@ def recording_from_arrays(
     or int64: shifted exactly), ``y (S, D)`` float64 in file order (``positions``: ``q
     (S, k)``), ``where(i)`` naming sample ``i`` in messages (see :func:`load_recording`)."""
     names = column_names(y.shape[1], positions)
-    finite = np.isfinite(y).all(1)
-    if t.dtype.kind == "f":
-        finite &= np.isfinite(t)
-    if not finite.all():
-        i = int(np.argmin(finite))
-        row = ", ".join([str(ids[i].item()), *(f"{v:g}" for v in [t[i].item(), *y[i].tolist()])])
-        _fail(path, where(i), f"non-finite value in ({row})")
+    _check_finite(path, ids, t, y, where)
     order = np.argsort(ids, kind="stable") if (ids[1:] < ids[:-1]).any() else None
 
     ids_s, t_s, y_s = (a if order is None else a[order] for a in (ids, t, y))
@@ -579,6 +573,19 @@ def recording_from_arrays(
         torch.from_numpy(t0.astype(np.float64)),
         positions,
     )
+
+
+def _check_finite(
+    path: str | Path, ids: np.ndarray, t: np.ndarray, y: np.ndarray, where: Callable[[int], str]
+) -> None:
+    """Refuse the first sample (file order) with a non-finite time or value."""
+    finite = np.isfinite(y).all(1)
+    if t.dtype.kind == "f":
+        finite &= np.isfinite(t)
+    if not finite.all():
+        i = int(np.argmin(finite))
+        row = ", ".join([str(ids[i].item()), *(f"{v:g}" for v in [t[i].item(), *y[i].tolist()])])
+        _fail(path, where(i), f"non-finite value in ({row})")
 
 
 def _served_dtype(dtype: str | torch.dtype) -> np.dtype:

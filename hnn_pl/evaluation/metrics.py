@@ -266,3 +266,31 @@ def score(r: Rollout) -> dict[str, float]:
         out["latent_mse"] = ((r.z_pred - r.z_true) ** 2).mean()
         out["probe_mse"] = r.probe_mse
     return {k: float(v) for k, v in out.items()}
+
+
+# --- stability metrics (stress)
+
+
+def relative_energy_error(e: Tensor) -> Tensor:
+    """``|E_t − E_0| / E_0`` of an energy ``e (T, ...)`` along its first (time) axis:
+    the same shape as ``e``."""
+    return ((e - e[:1]) / e[:1]).abs()
+
+
+def drift_stats(t: Tensor, rel: Tensor) -> dict[str, float]:
+    """Max, slope (per unit time, least squares of the row mean) and first/last-decile
+    means of a relative energy error ``rel (T, B)`` over ``t (T,)``."""
+    m = rel.mean(1)
+    k = max(1, len(t) // 10)
+    return {
+        "max": float(rel.max()),
+        "slope": float(slope(t, m)),
+        "first": float(m[:k].mean()),
+        "last": float(m[-k:].mean()),
+    }
+
+
+def return_error(y_back: Tensor, y0: Tensor) -> Tensor:
+    """``max |y_back − y_0|`` over every element: how far integrating to ``T`` and back
+    misses the start (0 for an exactly reversible method)."""
+    return (y_back - y0).abs().max()

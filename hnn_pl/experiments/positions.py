@@ -25,11 +25,15 @@ import json
 import statistics
 import time
 import traceback
-from pathlib import Path
 from typing import Any
+
+from hnn_pl.experiments.collect import Build, machine, quiet_lightning_runs
 
 #: half of each trajectory's samples dropped at random (irregular times)
 HALF = "--data.init_args.keep_fraction=0.5"
+
+#: the simulated tasks with positions configs (the real pendulum's rows differ)
+SIMULATED = ("spring", "pendulum")
 
 #: the rows: task → (label, model, config, extra CLI options)
 ROWS: dict[str, list[tuple[str, str, str, tuple[str, ...]]]] = {
@@ -45,7 +49,7 @@ ROWS: dict[str, list[tuple[str, str, str, tuple[str, ...]]]] = {
         ("states", "hnn", f"{t}_traj.yaml", ()),
         ("finite differences", "hnn", f"{t}_positions_fd.yaml", ()),
     ]
-    for t in ("spring", "pendulum")
+    for t in SIMULATED
 }
 ROWS["real_pendulum"] = [
     ("positions", "hnn", "real_pendulum_positions.yaml", ()),
@@ -60,23 +64,24 @@ SCORES = ("position_mse", "energy_mse", "position_valid_time", "floor_observer_p
 SCORES += ("energy_drift_slope", "true_energy_drift_slope")
 
 
-def run_row(task: str, row: tuple, seed: int, max_steps: int | None = None) -> dict[str, Any]:
-    """Train one row's model for ``seed`` and score it under the observer protocol;
-    never raises (``error`` holds the traceback). Times: ``train_s`` the fit,
-    ``observer_s`` the starts' inference for the held-out trajectories."""
+def run_row(
+    task: str, row: tuple, seed: int, max_steps: int | None = None, *, build: Build
+) -> dict[str, Any]:
+    """Train one row's model for ``seed`` (built by ``build``) and score it under the
+    observer protocol; never raises (``error`` holds the traceback). Times: ``train_s``
+    the fit, ``observer_s`` the starts' inference for the held-out trajectories."""
     label, model, config, extra = row
     record: dict[str, Any] = {"task": task, "row": label, "model": model, "seed": seed}
     try:
         import torch
 
-        from hnn_pl.commands.cli import cli_main, quiet_args
         from hnn_pl.evaluation import evaluate, task_protocol
         from hnn_pl.evaluation.protocols import POSITION_SAMPLES
         from hnn_pl.evaluation.views import observed_starts
 
-        args = ["--config", config, f"--seed_everything={seed}", *quiet_args(), *extra]
-        args += [f"--trainer.max_steps={max_steps}"] if max_steps else []
-        cli = cli_main(args, run=False, save_config=False)
+        options = [f"--seed_everything={seed}", *extra]
+        options += [f"--trainer.max_steps={max_steps}"] if max_steps else []
+        cli = build(config, options)
         torch.set_num_threads(1)
         cli.datamodule.prepare_data()
         cli.datamodule.setup("fit")
@@ -95,9 +100,11 @@ def run_row(task: str, row: tuple, seed: int, max_steps: int | None = None) -> d
     return record
 
 
-def collect(tasks: list[str], seeds: list[int], workers: int, max_steps: int | None) -> list:
+def collect(
+    tasks: list[str], seeds: list[int], workers: int, max_steps: int | None, build: Build
+) -> list:
     """Every row of ``tasks`` for every seed, ``workers`` processes (0: in this one)."""
-    jobs = [(t, row, s, max_steps) for t in tasks for row in ROWS[t] for s in seeds]
+    jobs = [(t, row, s, max_steps, build) for t in tasks for row in ROWS[t] for s in seeds]
     if workers == 0:
         return [_announce(k, len(jobs), *job) for k, job in enumerate(jobs, 1)]
     from concurrent.futures import ProcessPoolExecutor
@@ -108,12 +115,12 @@ def collect(tasks: list[str], seeds: list[int], workers: int, max_steps: int | N
         return [f.result() for f in futures]
 
 
-def _announce(k: int, n: int, task: str, row: tuple, seed: int, max_steps: int | None) -> dict:
-    from hnn_pl.commands.reproduce import _quiet_lightning_runs
-
+def _announce(
+    k: int, n: int, task: str, row: tuple, seed: int, max_steps: int | None, build: Build
+) -> dict:
     print(f"[start {k}/{n}] {task} {row[0]} {row[1]} seed {seed}", flush=True)
-    with _quiet_lightning_runs():
-        return run_row(task, row, seed, max_steps)
+    with quiet_lightning_runs():
+        return run_row(task, row, seed, max_steps, build=build)
 
 
 def summarise(records: list[dict]) -> list[dict]:
@@ -196,7 +203,7 @@ def _ratio(a: dict, b: dict, key: str) -> float:
 def criteria(summary: list[dict]) -> list[str]:
     """The targets as measured ratios of medians, one line each."""
     out = ["## Criteria (ratios of medians)", ""]
-    for task in ("spring", "pendulum"):
+    for task in SIMULATED:
         pos, st = _get(summary, task, "positions"), _get(summary, task, "states")
         fd = _get(summary, task, "finite differences")
         half = _get(summary, task, "positions, half the samples")
@@ -242,18 +249,18 @@ def per_seed(records: list[dict]) -> list[str]:
     return lines
 
 
-def run(args: Any, command: str, machine: str) -> int:
-    """The campaign for reproduce's parsed ``args`` (``tasks``, ``seeds``, ``first_seed``,
-    ``workers``, ``max_steps``, ``out``): writes the page and the JSON records."""
+def run(call: Any, build: Build) -> int:
+    """The campaign of a ``reproduce`` call (:class:`hnn_pl.experiments.reproduce.Call`:
+    its ``tasks``, ``seeds``, ``workers``, ``max_steps``, ``out``, ``command``), runs made
+    by ``build``: writes the page and the JSON records."""
     from hnn_pl.evaluation.protocols import POSITION_SAMPLES
 
-    tasks = [t for t in (args.tasks or list(ROWS)) if t in ROWS]
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    tasks = [t for t in (call.tasks or list(ROWS)) if t in ROWS]
     start = time.perf_counter()
-    records = collect(tasks, seeds, args.workers, args.max_steps)
-    meta = {"command": command, "machine": machine, "wall_s": time.perf_counter() - start}
+    records = collect(tasks, list(call.seeds), call.workers, call.max_steps, build)
+    meta = {"command": call.command, "machine": machine(), "wall_s": time.perf_counter() - start}
     meta["samples"] = POSITION_SAMPLES
-    out = Path(args.out or "RESULTS_positions.md")
+    out = call.out
     out.parent.mkdir(parents=True, exist_ok=True)
     summary = summarise(records)
     out.write_text(render(summary, records, meta))

@@ -1,6 +1,6 @@
 """What the report commands share: Markdown tables, the figures' files, a PNG writer.
 
-``python -m hnn_pl.commands.report [path]`` (re)draws ``docs/pixel_frames.png``.
+``python -m hnn_pl.experiments.report [path]`` (re)draws ``docs/pixel_frames.png``.
 """
 
 from __future__ import annotations

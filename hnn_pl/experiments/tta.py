@@ -8,8 +8,8 @@ import time
 
 from lightning.pytorch import Callback, LightningModule, Trainer
 
-from hnn_pl import tasks
 from hnn_pl.evaluation import eval_mode, score, task_protocol
+from hnn_pl.experiments import paper
 
 
 class TimeToAccuracy(Callback):
@@ -28,8 +28,8 @@ class TimeToAccuracy(Callback):
       that never moves: a still state conserves any energy);
     - the state MSE on the task's clean protocol (without the error floors, truth
       computed once) is ≤ ``state_target``, the paper recipe's median over seeds
-      (:attr:`hnn_pl.tasks.Task.paper_motion`). It is computed only at checks that
-      pass the first two, until the first pass.
+      (:attr:`hnn_pl.experiments.paper.PaperTask.paper_motion`). It is computed only
+      at checks that pass the first two, until the first pass.
 
     Logged: ``tta/energy_mse``, ``tta/motion_error``, ``tta/state_mse`` (when
     computed); once passed, ``tta/seconds`` (training time since ``setup``, scoring
@@ -40,7 +40,7 @@ class TimeToAccuracy(Callback):
     computed); :attr:`scoring_seconds` the scoring's own cost.
 
     Args:
-        task: a name in :data:`hnn_pl.tasks.TASKS`.
+        task: a name in :data:`hnn_pl.experiments.paper.PAPER`.
         target: the energy MSE to reach (``None``: the published HNN value).
         every_n_steps: scoring period in optimiser steps.
         stop: end the fit when the target is reached.
@@ -64,7 +64,7 @@ class TimeToAccuracy(Callback):
         state_target: float | None = None,
     ) -> None:
         super().__init__()
-        self.task = tasks.get(task)
+        self.task = paper.get(task)
         if not max_motion_error > 0:
             raise ValueError(f"max_motion_error must be > 0, got {max_motion_error}")
         self.max_motion_error = float(max_motion_error)
@@ -74,8 +74,8 @@ class TimeToAccuracy(Callback):
             raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
         self.target = self.task.published["hnn"].energy_mse if target is None else float(target)
         if state_target is None:
-            paper = self.task.paper_motion
-            state_target = math.inf if paper is None else paper.state_mse
+            motion = self.task.paper_motion
+            state_target = math.inf if motion is None else motion.state_mse
         if not state_target > 0:
             raise ValueError(f"state_target must be > 0, got {state_target}")
         self.state_target = float(state_target)
