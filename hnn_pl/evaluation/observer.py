@@ -61,6 +61,9 @@ from hnn_pl.evaluation.base import in_dtype
 from hnn_pl.integrate import odeint_windows
 
 F64 = torch.float64
+#: the observed positions a start is inferred from when the data observe positions alone
+#: (the first second of the paper's spring and pendulum draws)
+POSITION_SAMPLES = 15
 #: LM stops for a row whose step lowers its cost, or would by the Gauss–Newton model, by
 #: less than this fraction (or 16·ε of the field's dtype, where that is larger: a
 #: float32 field's cost is that noisy)

@@ -62,7 +62,8 @@ class Protocol(_Fields):
             (:func:`~hnn_pl.evaluation.observer.observe`) instead of taking the true
             state, and score what is invariant under the momenta's gauge: positions
             and the true energy from ``(q, q̇)``; ``None``: the true start, or
-            :data:`POSITION_SAMPLES` when the data observe positions alone.
+            :data:`~hnn_pl.evaluation.observer.POSITION_SAMPLES` when the data observe
+            positions alone.
     """
 
     t_end: float | None = 20.0
@@ -117,10 +118,6 @@ class Protocol(_Fields):
         ``solver``: a rollout protocol always integrates with its own ``method``."""
         return lambda model: self.run(model, dm, floors=False)
 
-
-#: the observed positions a start is inferred from when the data observe positions alone
-#: (the first second of the paper's spring and pendulum draws)
-POSITION_SAMPLES = 15
 
 #: scipy's default ``atol``, which sets a reference protocol's accuracy when it leaves
 #: ``atol`` unset (quirk 5)

@@ -118,7 +118,7 @@ def observer_samples(p: Any, dm: Any) -> int | None:
     """The observed positions a protocol's starts are inferred from: its
     ``observer_samples``, else ``POSITION_SAMPLES`` for data of positions alone, else
     ``None`` (the true starts)."""
-    from hnn_pl.evaluation.protocols import POSITION_SAMPLES
+    from hnn_pl.evaluation.observer import POSITION_SAMPLES
 
     n = getattr(p, "observer_samples", None)
     if n is None and getattr(dm, "observe", "states") == "positions":

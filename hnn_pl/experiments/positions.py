@@ -76,7 +76,7 @@ def run_row(
         import torch
 
         from hnn_pl.evaluation import evaluate, task_protocol
-        from hnn_pl.evaluation.protocols import POSITION_SAMPLES
+        from hnn_pl.evaluation.observer import POSITION_SAMPLES
         from hnn_pl.evaluation.views import observed_starts
 
         options = [f"--seed_everything={seed}", *extra]
@@ -253,7 +253,7 @@ def run(call: Any, build: Build) -> int:
     """The campaign of a ``reproduce`` call (:class:`hnn_pl.experiments.reproduce.Call`:
     its ``tasks``, ``seeds``, ``workers``, ``max_steps``, ``out``, ``command``), runs made
     by ``build``: writes the page and the JSON records."""
-    from hnn_pl.evaluation.protocols import POSITION_SAMPLES
+    from hnn_pl.evaluation.observer import POSITION_SAMPLES
 
     tasks = [t for t in (call.tasks or list(ROWS)) if t in ROWS]
     start = time.perf_counter()
