@@ -24,7 +24,14 @@ import torch
 from torch import Tensor
 
 from hnn_pl.evaluation.base import Rollout, eval_mode, integrate_field, learned_h
-from hnn_pl.evaluation.metrics import observed_mean, split_loss, velocity_energy
+from hnn_pl.evaluation.metrics import (
+    energy_mse_of,
+    h_spread,
+    mse,
+    split_loss,
+    state_mse_per_trajectory,
+    velocity_energy,
+)
 from hnn_pl.integrate import odeint
 
 #: size of the start perturbation that measures the chaos floor
@@ -102,7 +109,7 @@ class StateView:
             )
         r.h_pred = learned_h(field, y_pred)
         if r.h_pred is not None:
-            r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
+            r.h_scale = h_spread(field, dm.reference_inputs(p.scale_rows).to(y_pred))
         if floors:
             r.floors = error_floors(dm, r.t, y_true, p)
             if n_obs is not None and r.floors:
@@ -182,17 +189,17 @@ def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Any) -> dict[str, Tensor
     chaos = system.trajectory(y0 + CHAOS_EPS * noise, tt)
     e_true, out = dm.energy(y_true.double()), {}
     for name, y in (("integrator", integ), ("chaos", chaos)):
-        out[f"{name}_energy"] = observed_mean((dm.energy(y) - e_true) ** 2, 0)
-        out[f"{name}_state"] = observed_mean((y - y_true.double()) ** 2, (0, 2))
+        out[f"{name}_energy"] = energy_mse_of(e_true, dm.energy(y))
+        out[f"{name}_state"] = state_mse_per_trajectory(y_true.double(), y)
     return out
 
 
 def fit_probe(z: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
     """Affine least squares ``target (N, K) ≈ [z, 1] @ W`` for ``z (N, L)``, in float64:
-    ``W (L + 1, K)`` and the mean squared residual."""
+    ``W (L + 1, K)`` and the mean squared residual (:func:`~hnn_pl.evaluation.metrics.mse`)."""
     a = torch.cat([z.double(), z.new_ones(len(z), 1, dtype=torch.float64)], -1)
     w = torch.linalg.lstsq(a, target.double()).solution
-    return w, ((a @ w - target.double()) ** 2).mean()
+    return w, mse(a @ w, target.double())
 
 
 def apply_probe(w: Tensor, z: Tensor) -> Tensor:
@@ -281,7 +288,7 @@ class PixelView(StateView):
         r.h_pred = learned_h(field, z_pred)
         if r.h_pred is not None:
             z_own = z_train if reader is model else model.encode(x_train.to(device))
-            r.h_scale = field.hamiltonian(z_own.to(z_pred.dtype)).std()
+            r.h_scale = h_spread(field, z_own.to(z_pred.dtype))
         return r
 
 
