@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from hnn_pl.evaluation.metrics import max_abs_error, mean_abs_error
 from hnn_pl.render import render_pendulum
 
 FRAMES = Path(__file__).resolve().parents[1] / "tests" / "data" / "gym_pendulum_frames.npz"
@@ -49,11 +50,12 @@ def compare(theta: torch.Tensor, frames: torch.Tensor) -> None:
     print("| renderer | mean abs. difference | max | ms per 1000 frames (float32) |")
     print("|---|---|---|---|")
     for name, kw in settings:
-        err = (render_pendulum(theta, **kw) - frames).abs()
+        drawn = render_pendulum(theta, **kw)
+        mean, worst = mean_abs_error(drawn, frames), max_abs_error(drawn, frames)
         t0 = time.perf_counter()
         render_pendulum(theta.float(), **kw)
         ms = (time.perf_counter() - t0) / len(theta) * 1e6
-        print(f"| {name} | {err.mean():.5f} | {err.max():.4f} | {ms:.0f} |")
+        print(f"| {name} | {mean:.5f} | {worst:.4f} | {ms:.0f} |")
 
 
 def _tent(n_in: int = 340, n_out: int = 28) -> torch.Tensor:
@@ -88,8 +90,11 @@ def fit(theta: torch.Tensor, frames: torch.Tensor, steps: int = 400) -> list[flo
         pred = base - w[:, rw] @ (rods * torch.sigmoid(logit_a) * ramp) @ w[:, cw].T
         loss = ((pred - frames) ** 2).mean()
         if step % 100 == 0:
-            err = (pred - frames).detach().abs()
-            print(f"step {step}: mean {err.mean():.5f}, max {err.max():.4f}, p {p.tolist()}")
+            mean, worst = (
+                mean_abs_error(pred.detach(), frames),
+                max_abs_error(pred.detach(), frames),
+            )
+            print(f"step {step}: mean {mean:.5f}, max {worst:.4f}, p {p.tolist()}")
         opt.zero_grad()
         loss.backward()
         opt.step()

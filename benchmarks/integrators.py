@@ -14,6 +14,7 @@ from collections import namedtuple
 import torch
 from common import main, measure, ms, table
 
+from hnn_pl.evaluation.metrics import max_abs_error, max_energy_drift
 from hnn_pl.integrate import odeint, scipy_odeint
 from hnn_pl.nets import MLP, HamiltonianField
 from hnn_pl.systems import Pendulum
@@ -104,8 +105,8 @@ def sweep_case(name, starts, spec, fields, energy, y0_all, t, ref, quick) -> lis
     for dtype, method, v in settings:
         sec, n, calls, y = time_setting(fields[dtype], method, v, y0.to(dtype), t.to(dtype), mrt)
         y = y[:, :n_err].double()
-        err = float((y - ref[:, :n_err]).abs().max())
-        drift = float(((energy(y) - e0).abs() / scale).max())
+        err = float(max_abs_error(y, ref[:, :n_err]))
+        drift = float(max_energy_drift(energy(y), e0, scale))
         setting = f"h={v:g}" if method in FIXED else f"tol={v:.0e}"
         rows.append(Row(name, starts, method, setting, str(dtype)[6:], sec, n, calls, err, drift))
         print(*rows[-1][:5], f"{sec:.3f} s", file=sys.stderr)

@@ -12,6 +12,7 @@ from typing import Any
 
 from hnn_pl import tasks
 from hnn_pl.evaluation.base import Rollout, eval_mode, in_dtype, integrate_field
+from hnn_pl.evaluation.contract import ObservedData, PixelData, StateData, SystemData
 from hnn_pl.evaluation.metrics import (
     grouped_mean,
     motion_error,
@@ -29,12 +30,16 @@ from hnn_pl.evaluation.reference import ReferenceCase, reference_case
 from hnn_pl.evaluation.views import apply_probe, fit_probe, is_pixel_model, rollout, view_of
 
 __all__ = [
+    "ObservedData",
     "Observation",
     "ObserverStatus",
+    "PixelData",
     "Protocol",
     "ReferenceCase",
     "ReferenceProtocol",
     "Rollout",
+    "StateData",
+    "SystemData",
     "apply_probe",
     "describe",
     "eval_mode",
@@ -63,7 +68,7 @@ __all__ = [
 
 
 def evaluate(
-    model: Any, datamodule: Any, protocol: Protocol | ReferenceProtocol, **run: Any
+    model: Any, datamodule: StateData, protocol: Protocol | ReferenceProtocol, **run: Any
 ) -> tuple[dict[str, float], Rollout]:
     """``protocol.run(model, datamodule, **run)`` then :func:`score`:
     ``({metric: value}, rollout)``."""
@@ -74,7 +79,7 @@ def evaluate(
 def evaluate_task(
     task: str,
     model: Any,
-    dm: Any,
+    dm: StateData,
     probe_model: Any = None,
     protocols: tuple[str, ...] = tasks.PROTOCOLS,
     losses: bool = True,

@@ -26,6 +26,23 @@ def observed_mean(x: Tensor, dim: int | tuple[int, ...] | None = None) -> Tensor
     return x.nanmean() if dim is None else x.nanmean(dim)
 
 
+def mse(a: Tensor, b: Tensor) -> Tensor:
+    """``mean (a − b)²`` over every element of ``a`` and ``b`` (one shape, or
+    broadcast): a scalar. NaN anywhere gives NaN (see :func:`state_mse` for a truth
+    with unobserved entries)."""
+    return ((a - b) ** 2).mean()
+
+
+def max_abs_error(a: Tensor, b: Tensor) -> Tensor:
+    """``max |a − b|`` over every element (one shape, or broadcast): a scalar."""
+    return (a - b).abs().max()
+
+
+def mean_abs_error(a: Tensor, b: Tensor) -> Tensor:
+    """``mean |a − b|`` over every element (one shape, or broadcast): a scalar."""
+    return (a - b).abs().mean()
+
+
 def grouped_mean(per_trajectory: Tensor, n_groups: int) -> tuple[float, float]:
     """Mean over trajectories and its "±": std of ``n_groups`` group means / √n_groups
     (``nan`` with fewer trajectories than groups, or one group)."""
@@ -52,8 +69,52 @@ def slope(t: Tensor, m: Tensor) -> Tensor:
 
 
 def energy_mse_per_trajectory(r: Rollout) -> Tensor:
-    """``mean_t (E(y_true) − E(y_pred))²``: ``(B,)`` (over observed times)."""
-    return observed_mean((r.e_true - r.e_pred) ** 2, 0)
+    """``mean_t (E(y_true) − E(y_pred))²``: ``(B,)`` (over observed times);
+    :func:`energy_mse_of` of ``r.e_true`` and ``r.e_pred``."""
+    return energy_mse_of(r.e_true, r.e_pred)
+
+
+def energy_mse_of(e_true: Tensor, e_pred: Tensor) -> Tensor:
+    """``mean_t (e_true − e_pred)²`` of energies ``(T, B)`` per trajectory: ``(B,)``,
+    over the times where ``e_true`` is observed (not NaN; :func:`observed_mean`)."""
+    return observed_mean((e_true - e_pred) ** 2, 0)
+
+
+def state_mse(y_true: Tensor, y_pred: Tensor) -> Tensor:
+    """``mean_{t,b,d} (y_true − y_pred)²`` of states ``(T, B, D)``: a scalar, over the
+    entries where ``y_true`` is observed (not NaN; :func:`observed_mean`)."""
+    return observed_mean((y_true - y_pred) ** 2)
+
+
+def state_mse_per_trajectory(y_true: Tensor, y_pred: Tensor) -> Tensor:
+    """``mean_{t,d} (y_true − y_pred)²`` of states ``(T, B, D)`` per trajectory: ``(B,)``,
+    over the entries where ``y_true`` is observed (not NaN; :func:`observed_mean`)."""
+    return observed_mean((y_true - y_pred) ** 2, (0, 2))
+
+
+def energy_conservation_mse(e: Tensor) -> Tensor:
+    """``mean_{t,b} (E(y_t) − E(y_0))²`` of energies ``e (T, B)`` along trajectories whose
+    truth conserves ``E``: the energy error without a reference trajectory; a scalar."""
+    return mse(e, e[:1])
+
+
+def max_energy_drift(e: Tensor, e0: Tensor, scale: Tensor | float) -> Tensor:
+    """``max_{t,b} |E(y_t) − E(y_0)| / scale`` of energies ``e (T, B)`` from their
+    starts' ``e0 (B,)``, ``scale`` a float or ``(B,)`` (e.g. ``|E(y_0)|``): a scalar."""
+    return ((e - e0).abs() / scale).max()
+
+
+def h_spread(field: nn.Module, x: Tensor) -> Tensor:
+    """``std_n H_θ(x_n)`` of ``field.hamiltonian`` over inputs ``x (N, D)``: the
+    yardstick of :func:`h_drift` (``H_θ`` carries an arbitrary additive constant and
+    scale); a scalar, without gradients."""
+    with torch.no_grad():
+        return field.hamiltonian(x).std()
+
+
+def h_excursion(h: Tensor) -> Tensor:
+    """``max_t |H_θ(y_t) − H_θ(y_0)|`` per row of ``h (T, B)``: ``(B,)``."""
+    return (h - h[0]).abs().amax(0)
 
 
 def h_drift(h: Tensor, scale: Tensor | float) -> Tensor:
@@ -61,7 +122,14 @@ def h_drift(h: Tensor, scale: Tensor | float) -> Tensor:
     ``(B,)``. ``H_θ`` carries an arbitrary additive constant, so ``|H_θ(y_0)|`` alone is
     no yardstick; ``scale`` (the spread of ``H_θ`` over training inputs) measures the
     drift against the spread of the learned energy over the data."""
-    return (h - h[0]).abs().amax(0) / (h[0].abs() + scale)
+    return h_excursion(h) / (h[0].abs() + scale)
+
+
+def h_spread_drift(h: Tensor, scale: Tensor | float) -> Tensor:
+    """``max_t |H_θ(y_t) − H_θ(y_0)| / scale`` per row of ``h (T, B)``: ``(B,)``; the
+    excursion of ``H_θ`` against its spread alone (:func:`h_spread`), without
+    :func:`h_drift`'s ``|H_θ(y_0)|``."""
+    return h_excursion(h) / scale
 
 
 def conserved_drift(r: Rollout) -> Tensor:
@@ -191,7 +259,7 @@ def energy_drift_slope(r: Rollout, energy: Tensor | None = None) -> Tensor:
 #: the metrics of :func:`score` on the rows that did not diverge, by name
 _ON_ROWS = {
     "energy_mse": lambda r: energy_mse_per_trajectory(r).mean(),
-    "state_mse": lambda r: observed_mean((r.y_true - r.y_pred) ** 2),
+    "state_mse": lambda r: state_mse(r.y_true, r.y_pred),
     "motion_error": lambda r: motion_error(r.y_pred, r.y_true),
     "valid_time": lambda r: valid_time(r).mean(),
     "energy_drift_slope": lambda r: energy_drift_slope(r),
@@ -262,8 +330,8 @@ def score(r: Rollout) -> dict[str, float]:
         name, kind = key.rsplit("_", 1)
         out[f"floor_{name}_{kind}_mse"] = value.mean()
     if r.has_frames:
-        out["pixel_mse"] = ((r.x_pred - r.x_true) ** 2).mean()
-        out["latent_mse"] = ((r.z_pred - r.z_true) ** 2).mean()
+        out["pixel_mse"] = mse(r.x_pred, r.x_true)
+        out["latent_mse"] = mse(r.z_pred, r.z_true)
         out["probe_mse"] = r.probe_mse
     return {k: float(v) for k, v in out.items()}
 

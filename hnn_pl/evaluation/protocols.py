@@ -18,6 +18,7 @@ from typing import Any
 
 from hnn_pl import tasks
 from hnn_pl.evaluation.base import Rollout, eval_mode
+from hnn_pl.evaluation.contract import StateData
 from hnn_pl.evaluation.reference import reference_case
 from hnn_pl.evaluation.views import view_of
 from hnn_pl.integrate import METHODS
@@ -103,7 +104,9 @@ class Protocol(_Fields):
         """``method``, ``rtol``, ``atol``, ``step_size`` for :func:`hnn_pl.odeint`."""
         return {k: getattr(self, k) for k in ("method", "rtol", "atol", "step_size")}
 
-    def run(self, model: Any, dm: Any, probe_model: Any = None, floors: bool = True) -> Rollout:
+    def run(
+        self, model: Any, dm: StateData, probe_model: Any = None, floors: bool = True
+    ) -> Rollout:
         """Roll ``model`` out from ``dm``'s held-out starts (see the model's view,
         :mod:`hnn_pl.evaluation.views`). ``probe_model``: with ``probe_encoder="hnn"``,
         the HNN whose encoder reads a pixel model's frames. ``floors=False`` skips the
@@ -113,7 +116,7 @@ class Protocol(_Fields):
         with eval_mode(model, reader):
             return view_of(model).run(self, dm, reader, floors)
 
-    def prepare(self, dm: Any, solver: str = "torch") -> Any:
+    def prepare(self, dm: StateData, solver: str = "torch") -> Any:
         """``model ↦ Rollout`` on ``dm`` without the error floors (time to accuracy);
         ``solver``: a rollout protocol always integrates with its own ``method``."""
         return lambda model: self.run(model, dm, floors=False)
@@ -168,12 +171,12 @@ class ReferenceProtocol(_Fields):
             "atol": SCIPY_ATOL if self.atol is None else self.atol,
         }
 
-    def run(self, model: Any, dm: Any, solver: str = "scipy") -> Rollout:
+    def run(self, model: Any, dm: StateData, solver: str = "scipy") -> Rollout:
         """The published procedure on ``dm``'s system (see :meth:`ReferenceCase.run
         <hnn_pl.evaluation.reference.ReferenceCase.run>`)."""
         return self.prepare(dm, solver)(model)
 
-    def prepare(self, dm: Any, solver: str = "scipy") -> Any:
+    def prepare(self, dm: StateData, solver: str = "scipy") -> Any:
         """``model ↦ Rollout`` on starts and truth made once."""
         case = reference_case(dm, self)
         return lambda model: case.run(model, solver)

@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from hnn_pl.evaluation.base import Rollout, in_dtype
+from hnn_pl.evaluation.contract import StateData
 from hnn_pl.integrate import odeint, scipy_odeint
 
 
@@ -98,7 +99,7 @@ class ReferenceCase:
         return sol.y[..., : self.y0.shape[-1]], sol.status
 
 
-def reference_case(dm: Any, p: Any) -> ReferenceCase:
+def reference_case(dm: StateData, p: Any) -> ReferenceCase:
     """Starts, times and truth of the reference protocol ``p`` on ``dm`` after ``setup``."""
     energy = _q2p2 if p.energy == "q2p2" else dm.energy
     if p.starts == "test":

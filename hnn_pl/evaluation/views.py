@@ -9,10 +9,9 @@ model from given starts through it.
 
 Duck-typed, public attributes only. A model: ``field`` (a module with
 ``vector_field(t, y)`` and, for an HNN, ``hamiltonian(y)``) or is one itself; pixel
-models also ``encode``, ``decode``, ``frame_dt``, ``losses``. A DataModule:
-``rollout_target(t_end, n_points)``, ``energy(y)``, ``reference_inputs(n)``, optionally
-``true_field(t, y)`` and ``has_energy``; pixel ones ``rollout_truth``,
-``trajectory_truth``, ``probe_data(n)``, ``canonical``, ``canonical_energy``.
+models also ``encode``, ``decode``, ``frame_dt``, ``losses``. A DataModule: the
+protocols of :mod:`hnn_pl.evaluation.contract` (:class:`StateData`, read where present
+:class:`SystemData` and :class:`ObservedData`; pixel ones :class:`PixelData`).
 """
 
 from __future__ import annotations
@@ -24,7 +23,15 @@ import torch
 from torch import Tensor
 
 from hnn_pl.evaluation.base import Rollout, eval_mode, integrate_field, learned_h
-from hnn_pl.evaluation.metrics import observed_mean, split_loss, velocity_energy
+from hnn_pl.evaluation.contract import ObservedData, PixelData, StateData
+from hnn_pl.evaluation.metrics import (
+    energy_mse_of,
+    h_spread,
+    mse,
+    split_loss,
+    state_mse_per_trajectory,
+    velocity_energy,
+)
 from hnn_pl.integrate import odeint
 
 #: size of the start perturbation that measures the chaos floor
@@ -57,19 +64,19 @@ class StateView:
         """Output times of a rollout from given starts: ``linspace(0, t_end, n_points)``."""
         return torch.linspace(0.0, t_end or 1.0, n_points or 100, dtype=torch.float64)
 
-    def energy(self, dm: Any) -> Any:
+    def energy(self, dm: StateData) -> Any:
         """The physical energy of the states, or ``None``."""
         return dm.energy if getattr(dm, "has_energy", True) else None
 
-    def start_width(self, dm: Any) -> int:
+    def start_width(self, dm: StateData) -> int:
         """The width of a start: the data's ``state_dim``."""
         return int(dm.state_dim)
 
-    def starts(self, dm: Any) -> Tensor:
+    def starts(self, dm: StateData) -> Tensor:
         """The held-out starts ``(B, D)``."""
         return dm.rollout_target()[1][0]
 
-    def losses(self, dm: Any) -> dict[str, float]:
+    def losses(self, dm: StateData) -> dict[str, float]:
         """MSE of ``f_θ`` against the split's targets (:func:`split_loss`), train and test."""
         out = {}
         for split in ("train", "test"):
@@ -77,7 +84,7 @@ class StateView:
             out[f"{split}_loss"], out[f"{split}_loss_pm"] = split_loss(self.field, x, dx)
         return out
 
-    def run(self, p: Any, dm: Any, reader: Any = None, floors: bool = True) -> Rollout:
+    def run(self, p: Any, dm: StateData, reader: Any = None, floors: bool = True) -> Rollout:
         """Roll out from ``dm.rollout_target(t_end, n_points)``'s starts under ``p``."""
         device = _device(self.model)
         t, y_true = dm.rollout_target(p.t_end, p.n_points)
@@ -102,7 +109,7 @@ class StateView:
             )
         r.h_pred = learned_h(field, y_pred)
         if r.h_pred is not None:
-            r.h_scale = field.hamiltonian(dm.reference_inputs(p.scale_rows).to(y_pred)).std()
+            r.h_scale = h_spread(field, dm.reference_inputs(p.scale_rows).to(y_pred))
         if floors:
             r.floors = error_floors(dm, r.t, y_true, p)
             if n_obs is not None and r.floors:
@@ -114,7 +121,7 @@ class StateView:
         return r
 
 
-def observer_samples(p: Any, dm: Any) -> int | None:
+def observer_samples(p: Any, dm: StateData) -> int | None:
     """The observed positions a protocol's starts are inferred from: its
     ``observer_samples``, else ``POSITION_SAMPLES`` for data of positions alone, else
     ``None`` (the true starts)."""
@@ -126,7 +133,7 @@ def observer_samples(p: Any, dm: Any) -> int | None:
     return n
 
 
-def observed_starts(model: Any, dm: Any, n: int, p: Any) -> Tensor:
+def observed_starts(model: Any, dm: ObservedData, n: int, p: Any) -> Tensor:
     """Each held-out trajectory's start ``(B, 2k)`` float64 inferred by
     :func:`~hnn_pl.evaluation.observer.infer_starts` from the first ``n`` observed
     positions of its trajectory (``dm``'s ``obs_*_test`` tables as observed, before any
@@ -147,7 +154,7 @@ def observed_starts(model: Any, dm: Any, n: int, p: Any) -> Tensor:
     return infer_starts(model, t[rows].double(), q[rows][..., :k].double(), method="rk4")
 
 
-def observer_floor(dm: Any, t: Tensor, y_true: Tensor, n: int, p: Any) -> Tensor:
+def observer_floor(dm: ObservedData, t: Tensor, y_true: Tensor, n: int, p: Any) -> Tensor:
     """The position error the observer leaves with the true field, per trajectory
     ``(B,)``: ``mean_{t,i<k} (q(t) − q_true(t))²`` of the true system from the starts
     :func:`observed_starts` infers with the true field (``dm.system``) from the same
@@ -159,7 +166,7 @@ def observer_floor(dm: Any, t: Tensor, y_true: Tensor, n: int, p: Any) -> Tensor
     return position_mse_per_trajectory(y, y_true.double(), y_true.shape[-1] // 2)
 
 
-def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Any) -> dict[str, Tensor]:
+def error_floors(dm: StateData, t: Tensor, y_true: Tensor, p: Any) -> dict[str, Tensor]:
     """How much of a rollout's error is not the model's, per trajectory ``(B,)``:
 
     - ``integrator``: the true system (``dm.system``) through the protocol's own method,
@@ -182,17 +189,17 @@ def error_floors(dm: Any, t: Tensor, y_true: Tensor, p: Any) -> dict[str, Tensor
     chaos = system.trajectory(y0 + CHAOS_EPS * noise, tt)
     e_true, out = dm.energy(y_true.double()), {}
     for name, y in (("integrator", integ), ("chaos", chaos)):
-        out[f"{name}_energy"] = observed_mean((dm.energy(y) - e_true) ** 2, 0)
-        out[f"{name}_state"] = observed_mean((y - y_true.double()) ** 2, (0, 2))
+        out[f"{name}_energy"] = energy_mse_of(e_true, dm.energy(y))
+        out[f"{name}_state"] = state_mse_per_trajectory(y_true.double(), y)
     return out
 
 
 def fit_probe(z: Tensor, target: Tensor) -> tuple[Tensor, Tensor]:
     """Affine least squares ``target (N, K) ≈ [z, 1] @ W`` for ``z (N, L)``, in float64:
-    ``W (L + 1, K)`` and the mean squared residual."""
+    ``W (L + 1, K)`` and the mean squared residual (:func:`~hnn_pl.evaluation.metrics.mse`)."""
     a = torch.cat([z.double(), z.new_ones(len(z), 1, dtype=torch.float64)], -1)
     w = torch.linalg.lstsq(a, target.double()).solution
-    return w, ((a @ w - target.double()) ** 2).mean()
+    return w, mse(a @ w, target.double())
 
 
 def apply_probe(w: Tensor, z: Tensor) -> Tensor:
@@ -215,18 +222,18 @@ class PixelView(StateView):
         """``n_points`` frames (200 by default) in the latent field's time unit."""
         return torch.arange(n_points or 200, dtype=torch.float64) * self.model.frame_dt
 
-    def energy(self, dm: Any) -> None:
+    def energy(self, dm: PixelData) -> None:
         return None
 
-    def start_width(self, dm: Any) -> int:
+    def start_width(self, dm: PixelData) -> int:
         """The width of a start: a frame pair, the model's ``input_dim``."""
         return int(self.model.hparams["input_dim"])
 
-    def starts(self, dm: Any) -> Tensor:
+    def starts(self, dm: PixelData) -> Tensor:
         """The held-out trajectories' first frame pairs ``(B, input_dim)``."""
         return dm.rollout_truth(n_points=2)[2][0]
 
-    def losses(self, dm: Any, chunk: int = 4000) -> dict[str, float]:
+    def losses(self, dm: PixelData, chunk: int = 4000) -> dict[str, float]:
         """The model's three-term loss over each whole split (chunks averaged by size)."""
         out = {}
         for split in ("train", "test"):
@@ -239,7 +246,7 @@ class PixelView(StateView):
             out[f"{split}_loss"], out[f"{split}_loss_pm"] = total / len(x), math.nan
         return out
 
-    def run(self, p: Any, dm: Any, reader: Any = None, floors: bool = True) -> Rollout:
+    def run(self, p: Any, dm: PixelData, reader: Any = None, floors: bool = True) -> Rollout:
         """Encode each held-out trajectory's first frame pair (or ``p.start``'s), integrate
         the latent field over ``n_points`` frames (``[0, model_t_end]`` if given),
         decode, and read ``(q, p)`` by an affine probe fitted on ``probe_rows`` encoded
@@ -281,7 +288,7 @@ class PixelView(StateView):
         r.h_pred = learned_h(field, z_pred)
         if r.h_pred is not None:
             z_own = z_train if reader is model else model.encode(x_train.to(device))
-            r.h_scale = field.hamiltonian(z_own.to(z_pred.dtype)).std()
+            r.h_scale = h_spread(field, z_own.to(z_pred.dtype))
         return r
 
 
