@@ -217,6 +217,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.dtype = getattr(torch, dtype)
         self.data: dict[str, Tensor] | None = None
         self._rollout_cache: dict[tuple, tuple[Tensor, Tensor]] = {}
+        self.save_hyperparameters(ignore=["system", "cache_dir"])  # the subclass's options too
 
     @property
     def state_dim(self) -> int:

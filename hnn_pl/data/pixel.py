@@ -91,7 +91,8 @@ class PixelPendulumData(TrajectoryDataModule):
         dtype: str = "float32",
     ) -> None:
         super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
-        self.save_hyperparameters(ignore=["cache_dir"])
+        for name in ("window", "keep_fraction", "observe"):  # frames: no observed trajectories
+            self.hparams.pop(name)
         if n_frames < 4:
             raise ValueError(f"n_frames must be >= 4 (one sample needs 4 frames), got {n_frames}")
         if rollout_frames < 1:

@@ -52,9 +52,8 @@ class RealPendulumData(RecordingData):
             ``.txt`` format (``None``: the shipped recording).
         test_start, test_stop: the held-out pairs ``[test_start, test_stop)``.
         differences: ``"forward"`` (paper) or ``"central"``.
-        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction,
-            observe:
-            see :class:`~hnn_pl.data.base.TrajectoryDataModule`.
+        **kwargs: the data options of :class:`~hnn_pl.data.base.TrajectoryDataModule`
+            (``batch_size``, ``seed``, ``dtype``, ``window``, ``observe``, …).
     """
 
     def __init__(
@@ -62,30 +61,11 @@ class RealPendulumData(RecordingData):
         path: str | None = None,
         test_start: int = 444,
         test_stop: int = 554,
-        batch_size: int | None = None,
-        full_batch_steps: int = 100,
-        seed: int | None = None,
-        cache_dir: str | None = None,
-        dtype: str = "float32",
         differences: str = "forward",
-        window: int | None = None,
-        keep_fraction: float = 1.0,
-        observe: str = "states",
+        **kwargs,
     ) -> None:
         self.test_start, self.test_stop = test_start, test_stop
-        super().__init__(
-            path,
-            RealPendulum(),
-            differences=differences,
-            batch_size=batch_size,
-            full_batch_steps=full_batch_steps,
-            seed=seed,
-            cache_dir=cache_dir,
-            dtype=dtype,
-            window=window,
-            keep_fraction=keep_fraction,
-            observe=observe,
-        )
+        super().__init__(path, RealPendulum(), 0.2, None, None, differences, **kwargs)
         for name in ("test_fraction", "test_trajectories", "test_segment"):
             self.hparams.pop(name, None)  # RecordingData's, not options of this class
 

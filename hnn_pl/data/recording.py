@@ -708,9 +708,8 @@ class RecordingData(TrajectoryDataModule):
         test_trajectories: the file's ids of the held-out trajectories.
         test_segment: ``(t_a, t_b)``: the held-out times of a single recording.
         differences: ``"central"`` or ``"forward"`` derivative pairs.
-        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction,
-            observe:
-            see :class:`TrajectoryDataModule`.
+        **kwargs: the data options of :class:`TrajectoryDataModule` (``batch_size``,
+            ``seed``, ``dtype``, ``window``, ``observe``, …).
     """
 
     def __init__(
@@ -721,23 +720,13 @@ class RecordingData(TrajectoryDataModule):
         test_trajectories: list[int] | None = None,
         test_segment: tuple[float, float] | None = None,
         differences: str = "central",
-        batch_size: int | None = None,
-        full_batch_steps: int = 100,
-        seed: int | None = None,
-        cache_dir: str | None = None,
-        dtype: str = "float32",
-        window: int | None = None,
-        keep_fraction: float = 1.0,
-        observe: str = "states",
+        **kwargs,
     ) -> None:
-        super().__init__(
-            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction, observe
-        )
+        super().__init__(**kwargs)
         require(
             differences in ("forward", "central"),
             f"differences must be 'forward' or 'central', got {differences!r}",
         )
-        self.save_hyperparameters(ignore=["system", "cache_dir"])
         self.recording = self.read(path)
         if self.recording.positions:
             self.observe = self.hparams["observe"] = "positions"

@@ -45,9 +45,8 @@ class SimulatedData(TrajectoryDataModule):
         noise_std: standard deviation of the input noise.
         test_fraction: share of the trajectories held out.
         test_first: hold out the first (not the last) trajectories.
-        batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction,
-            observe: see
-            :class:`TrajectoryDataModule`.
+        **kwargs: the data options of :class:`TrajectoryDataModule` (``batch_size``,
+            ``seed``, ``dtype``, ``window``, ``observe``, …).
     """
 
     def __init__(
@@ -59,24 +58,14 @@ class SimulatedData(TrajectoryDataModule):
         noise_std: float = 0.1,
         test_fraction: float = 0.5,
         test_first: bool = False,
-        batch_size: int | None = None,
-        full_batch_steps: int = 100,
-        seed: int | None = None,
-        cache_dir: str | None = None,
-        dtype: str = "float32",
-        window: int | None = None,
-        keep_fraction: float = 1.0,
-        observe: str = "states",
+        **kwargs,
     ) -> None:
-        super().__init__(
-            batch_size, full_batch_steps, seed, cache_dir, dtype, window, keep_fraction, observe
-        )
+        super().__init__(**kwargs)
         split_sizes(n_trajectories, test_fraction)
         require(n_points >= 2, f"n_points must be >= 2: {n_points}")
         t0, t1 = (float(t) for t in t_span)
         require(math.isfinite(t0) and math.isfinite(t1) and t1 > t0, f"bad t_span {t_span}")
         require(math.isfinite(noise_std) and noise_std >= 0, f"noise_std must be >= 0: {noise_std}")
-        self.save_hyperparameters(ignore=["system", "cache_dir"])
         self.system = system
         self.hparams["system"] = system_spec(system)
         self.n_trajectories, self.n_points, self.noise_std = n_trajectories, n_points, noise_std

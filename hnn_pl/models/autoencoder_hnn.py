@@ -51,11 +51,12 @@ class AutoencoderDynamicsModel(RecipeModel):
         recon_weight, canonical_weight, hnn_weight: loss weights (1, 1, 0.1).
         frame_dt: one frame in the latent field's time unit (1.0: the reference).
         input_noise: std of the training noise ``ε`` (reference ``--input_noise``, 0).
-        lr, weight_decay: Adam's rate and L2 coefficient (1e-3, 1e-5).
+        weight_decay: the L2 coefficient; the reference's 1e-5 where the recipe's default
+            is 0 (the one recipe option whose default differs here).
         field_weight_decay: the latent field's (``None``: ``weight_decay``, the reference;
             Adam's L2 can pin an early, small field at zero, see ``configs/pixel.yaml``).
-        optimizer, schedule, warmup_steps, inner_steps, grad_clip, on_nonfinite: the
-            rest of the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`).
+        **kwargs: the rest of the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`:
+            ``lr``, ``optimizer``, ``schedule``, …).
     """
 
     def __init__(
@@ -72,21 +73,13 @@ class AutoencoderDynamicsModel(RecipeModel):
         hnn_weight: float = 0.1,
         frame_dt: float = 1.0,
         input_noise: float = 0.0,
-        lr: float = 1e-3,
         weight_decay: float = 1e-5,
         field_weight_decay: float | None = None,
-        optimizer: str = "adam",
-        schedule: str = "constant",
-        warmup_steps: int = 0,
-        inner_steps: int = 1,
-        grad_clip: float | None = None,
-        on_nonfinite: str = "stop",
+        **kwargs,
     ) -> None:
-        recipe = (lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip)
-        super().__init__(*recipe, on_nonfinite)
+        super().__init__(weight_decay=weight_decay, **kwargs)
         if latent_dim < 2 or latent_dim % 2:
             raise ValueError(f"latent_dim must be even and >= 2 (z = (q, p)), got {latent_dim}")
-        self.save_hyperparameters()
         self.encoder = PixelEncoder(input_dim, hidden_dim, latent_dim, ae_activation)
         self.decoder = PixelDecoder(latent_dim, hidden_dim, input_dim, ae_activation)
         self.field = self.build_field(

@@ -79,9 +79,9 @@ class DynamicsModel(RecipeModel):
         state_weight: weight of the learned states' fit to the observations.
         continuity_weight: weight of the integration's fit to the learned states of
             the window's later samples (``learned_states="sample"``; 0: off).
-        lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip,
-            on_nonfinite: the training recipe (:class:`~hnn_pl.models.recipe.RecipeModel`;
-            the paper's: Adam, constant rate).
+        **kwargs: the training recipe, :class:`~hnn_pl.models.recipe.RecipeModel`'s
+            ``lr``, ``weight_decay``, ``optimizer``, ``schedule``, … (the paper's: Adam,
+            constant rate).
     """
 
     def __init__(
@@ -90,25 +90,17 @@ class DynamicsModel(RecipeModel):
         hidden_dim: int = 200,
         n_hidden: int = 2,
         activation: str = "tanh",
-        lr: float = 1e-3,
-        weight_decay: float = 0.0,
-        optimizer: str = "adam",
-        schedule: str = "constant",
-        warmup_steps: int = 0,
-        inner_steps: int = 1,
-        grad_clip: float | None = None,
-        on_nonfinite: str = "stop",
         objective: str = "derivative",
         traj_method: str = "rk4",
         substeps: int = 1,
         learned_states: str = "none",
         state_weight: float = 1.0,
         continuity_weight: float = 0.0,
+        **kwargs,
     ) -> None:
         from hnn_pl.integrate import WINDOW_METHODS
 
-        recipe = (lr, weight_decay, optimizer, schedule, warmup_steps, inner_steps, grad_clip)
-        super().__init__(*recipe, on_nonfinite)
+        super().__init__(**kwargs)
         if input_dim < 2 or input_dim % 2 or hidden_dim < 1 or n_hidden < 1:
             raise ValueError(
                 "input_dim must be even and >= 2 (y = (q, p)), hidden_dim and n_hidden >= 1; "
@@ -134,7 +126,6 @@ class DynamicsModel(RecipeModel):
         ]:
             if not ok:
                 raise ValueError(message)
-        self.save_hyperparameters()
         self.objective, self.traj_method, self.substeps = objective, traj_method, substeps
         self.learned_states, self.state_weight = learned_states, state_weight
         self.continuity_weight = continuity_weight

@@ -88,6 +88,7 @@ class RecipeModel(L.LightningModule):
         ]:
             if not ok:
                 raise ValueError(message)
+        self.save_hyperparameters()  # every subclass's options too (their frames are above)
         self.automatic_optimization = False
         self._skipped = 0
         self.recipe = dict(
