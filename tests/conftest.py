@@ -38,3 +38,6 @@ def data_cache(tmp_path_factory) -> Path:
 @pytest.fixture(autouse=True)
 def _cache(data_cache, monkeypatch):
     monkeypatch.setenv("HNN_PL_CACHE", str(data_cache))
+    # seed_everything exports PL_GLOBAL_SEED, which a DataModule's seed=None follows:
+    # restored after each test, so no test's seed becomes another's default
+    monkeypatch.delenv("PL_GLOBAL_SEED", raising=False)
