@@ -8,7 +8,10 @@
   disk, Ctrl-C) leaves the previous file and no partial one; a full disk is
   ``OSError("no space left on <directory>")``.
 - :func:`check_model_class`: refuse a checkpoint of another model class (the model,
-  the CLI and ``bump`` use it), comparing names without importing any.
+  the CLI and ``bump`` use it), comparing names without importing any;
+  :func:`check_finite_weights` (every :func:`load_checkpoint` runs it),
+  :func:`check_same_system`, :func:`check_state_shapes`: weights that are not finite,
+  trained on another system, or of another shape, each refused in one line.
 - :func:`require_memory`: refuse work whose estimated memory exceeds the machine's.
 """
 
@@ -30,7 +33,8 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 
     Raises:
         ValueError: one line naming the file: missing, a directory, empty, truncated,
-            not a torch file, holding more than weights, or not a dict.
+            not a torch file, holding more than weights, not a dict, or with weights
+            that are not finite (:func:`check_finite_weights`).
     """
     path = Path(path)
     if not path.exists():
@@ -62,7 +66,92 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
         raise ValueError(f"checkpoint {path}: cannot be read ({reason})") from None
     if not isinstance(ckpt, dict):
         raise ValueError(f"checkpoint {path}: holds a {type(ckpt).__name__}, not a checkpoint")
+    check_finite_weights(ckpt, f"checkpoint {path}")
     return ckpt
+
+
+def check_finite_weights(ckpt: dict[str, Any], where: str) -> None:
+    """Refuse a checkpoint whose ``state_dict`` holds a floating tensor with a NaN or an
+    infinity: ``ValueError`` naming ``where``, the first such tensor and its count (such
+    weights would be tested to nan metrics, rolled out or bumped without a word)."""
+    state = ckpt.get("state_dict")
+    if not isinstance(state, dict):
+        return
+    for name, value in state.items():
+        if not (torch.is_tensor(value) and value.is_floating_point()):
+            continue
+        bad = int((~torch.isfinite(value)).sum())
+        if bad:
+            raise ValueError(
+                f"{where}: its weights are not finite ({name}: {bad} of {value.numel()} values "
+                "are nan or inf); use a checkpoint of a run that did not diverge"
+            )
+
+
+def check_same_system(ckpt: dict[str, Any], datamodule: Any, where: str) -> None:
+    """Refuse a checkpoint trained on another system than ``datamodule``'s: both
+    DataModules' hyperparameters record ``system`` as ``{"class_path", "init_args"}``
+    (:func:`~hnn_pl.systems.base.system_spec`); ``ValueError`` naming both. Nothing to
+    compare (no system on either side, e.g. a recording without one) passes."""
+    saved = (ckpt.get("datamodule_hyper_parameters") or {}).get("system")
+    current = (getattr(datamodule, "hparams", None) or {}).get("system")
+    if not (isinstance(saved, dict) and isinstance(current, dict)):
+        return
+    if _spec_key(saved) == _spec_key(current):
+        return
+    same_class = saved.get("class_path") == current.get("class_path")
+    raise ValueError(
+        f"{where} was trained on {_spec_name(saved, current if same_class else None)} but the "
+        f"config's data is {_spec_name(current, saved if same_class else None)}: use the "
+        "config the checkpoint was trained with"
+    )
+
+
+def _spec_key(spec: dict[str, Any]) -> str:
+    import json
+
+    return json.dumps(
+        {"class_path": spec.get("class_path"), "init_args": spec.get("init_args") or {}},
+        sort_keys=True,
+        default=str,
+    )
+
+
+def _spec_name(spec: dict[str, Any], other: dict[str, Any] | None) -> str:
+    """``class_path``, with the init_args that differ from ``other``'s (same class)."""
+    name = str(spec.get("class_path"))
+    if other is None:
+        return name
+    mine, theirs = spec.get("init_args") or {}, other.get("init_args") or {}
+    diff = [
+        f"{k}={mine.get(k)!r}"
+        for k in sorted(set(mine) | set(theirs))
+        if mine.get(k) != theirs.get(k)
+    ]
+    return f"{name}({', '.join(diff)})"
+
+
+def check_state_shapes(saved: dict[str, Any], own: dict[str, Any], where: str) -> None:
+    """Refuse a state dict ``saved`` whose names or shapes differ from a model's ``own``:
+    one ``ValueError`` line naming the first difference (torch's is many lines)."""
+    missing = [k for k in own if k not in saved]
+    extra = [k for k in saved if k not in own]
+    shapes = [
+        k
+        for k in own
+        if k in saved and torch.is_tensor(saved[k]) and saved[k].shape != own[k].shape
+    ]
+    if not (missing or extra or shapes):
+        return
+    if shapes:
+        k = shapes[0]
+        what = f"{k} has shape {tuple(saved[k].shape)}, the config's model {tuple(own[k].shape)}"
+    else:
+        what = f"no {missing[0]}" if missing else f"an unknown {extra[0]}"
+        what = f"it holds {what}"
+    raise ValueError(
+        f"{where} does not fit the config's model ({what}): use the config it was trained with"
+    )
 
 
 def loaded_class(path: str) -> type | None:

@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import fault_cases_recording
+import fault_cases_resume
 import pytest
 import torch
 
@@ -81,6 +82,8 @@ def _files(kind: str, tmp: Path) -> None:
     """Make the file a case needs in its working directory ``tmp``."""
     if kind in fault_cases_recording.FILES:
         return fault_cases_recording.FILES[kind](tmp)
+    if kind in fault_cases_resume.FILES:
+        return fault_cases_resume.FILES[kind](tmp)
     if kind == "empty-config":
         (tmp / "empty.yaml").write_text("")
     elif kind == "base-missing":
@@ -231,6 +234,7 @@ CASES = {
     ),
 }
 CASES |= fault_cases_recording.CASES
+CASES |= fault_cases_resume.CASES
 
 
 class _Forks:

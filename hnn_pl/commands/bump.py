@@ -38,13 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     ckpt = load_checkpoint(args.ckpt_path)
     cli = cli_main(["--config", config, "--trainer.logger=false"], run=False, save_config=False)
     check_model_class(ckpt, cli.config.get("model").class_path, f"checkpoint {args.ckpt_path}")
-    state = ckpt.get("state_dict")
-    if not isinstance(state, dict):
-        raise ValueError(
-            f"checkpoint {args.ckpt_path}: holds no state_dict (not a Lightning checkpoint)"
-        )
     model, dm = cli.model, cli.datamodule
-    model.load_state_dict(state)
+    model.load_trained(ckpt, dm, f"checkpoint {args.ckpt_path}")  # as fit saved it: states too
     model.eval()
     dm.setup("test")
     starts = view_of(model).starts(dm)[: args.starts]

@@ -43,8 +43,10 @@ from hnn_pl.commands.cli_errors import (
     check_starts,
     check_threads,
     checkpoint_init_args,
+    given_model_options,
     one_line,
     program_name,
+    refuse_changed_options,
 )
 from hnn_pl.commands.config_paths import resolve_config_args
 from hnn_pl.safe_io import check_model_class, load_checkpoint, loaded_class
@@ -158,12 +160,21 @@ class HNNCLI(LightningCLI):
             help="torch threads: a number, or auto (cores not busy with other processes)",
         )
 
+    def parse_arguments(self, parser: LightningArgumentParser, args: ArgsType) -> None:
+        """Parse, and keep the command line: options given on it are compared with a
+        checkpoint's (:meth:`_parse_ckpt_path`)."""
+        self._argv = [str(a) for a in args] if isinstance(args, (list, tuple)) else []
+        super().parse_arguments(parser, args)
+
     def _parse_ckpt_path(self) -> None:
         """A ``--ckpt_path`` is data: read it safely (one line if it is missing,
-        empty, damaged or more than weights), refuse one of another model class than
-        the config's (compared as names, nothing it names is imported; LightningCLI
-        would import its ``_class_path`` and build that class under the config's run
-        name), and restore its plain hyperparameters into the config's class."""
+        empty, damaged, more than weights or not finite), refuse one of another model
+        class than the config's (compared as names, nothing it names is imported;
+        LightningCLI would import its ``_class_path`` and build that class under the
+        config's run name), refuse model options given on the command line that differ
+        from its own (:func:`~hnn_pl.commands.cli_errors.refuse_changed_options`), and
+        restore its other plain hyperparameters into the config's class."""
+        self._checkpoint = None
         sub = self.config.get("subcommand")
         config = self.config.get(sub) if sub else None
         ckpt_path = config.get("ckpt_path") if config else None
@@ -171,11 +182,14 @@ class HNNCLI(LightningCLI):
             config["ckpt_path"] = ckpt_path = resolve_checkpoint(ckpt_path)
         if not check_ckpt_path(ckpt_path):
             return
-        ckpt = load_checkpoint(ckpt_path)
+        ckpt = self._checkpoint = load_checkpoint(ckpt_path)
         model = config.get("model")
         if getattr(model, "class_path", None):
             check_model_class(ckpt, model.class_path, f"checkpoint {ckpt_path}")
-        restored = checkpoint_init_args(ckpt, getattr(model, "init_args", None))
+        init_args = getattr(model, "init_args", None)
+        given = given_model_options(getattr(self, "_argv", []))
+        refuse_changed_options(ckpt, init_args, given, f"checkpoint {ckpt_path}")
+        restored = checkpoint_init_args(ckpt, init_args, given)
         if restored:
             update = {sub: {"model": {"class_path": model.class_path, "init_args": restored}}}
             self.config = self.parser.parse_object(update, self.config)
@@ -225,7 +239,9 @@ class HNNCLI(LightningCLI):
 
     def after_instantiate_classes(self) -> None:
         """Checkpoints are saved atomically (a failed save never replaces a good
-        ``last.ckpt``); ``predict``'s file of starts is checked before any data."""
+        ``last.ckpt``); ``predict``'s file of starts is checked before any data; the
+        model's checks of the data and of the checkpoint (``check_run``) run before any
+        run directory is written."""
         from hnn_pl.callbacks import RolloutWriter
         from hnn_pl.safe_io import atomic_checkpoint_io
 
@@ -236,6 +252,10 @@ class HNNCLI(LightningCLI):
         for callback in self.trainer.callbacks:
             if isinstance(callback, RolloutWriter) and callback.starts is not None:
                 check_starts(callback.starts, _start_width(self.model, self.datamodule))
+        check_run = getattr(self.model, "check_run", None)  # the model's refusals, before a run
+        if check_run is not None and self.subcommand is not None:
+            path = self.config.get(self.subcommand).get("ckpt_path")
+            check_run(self.datamodule, self.subcommand, self._checkpoint, f"checkpoint {path}")
 
 
 def resolve_checkpoint(path: str) -> str:

@@ -7,7 +7,9 @@
   model class it names is compared *as a string* with the class the config builds
   (:func:`hnn_pl.safe_io.check_model_class`); nothing a checkpoint names is imported.
 - :func:`checkpoint_init_args`: the plain hyperparameters of a checkpoint that the
-  config's class takes (what LightningCLI restores, without resolving a class path).
+  config's class takes (what LightningCLI restores, without resolving a class path);
+  :func:`refuse_changed_options`: an option given on the command line (or the
+  objective) that differs from the checkpoint's is refused, never silently replaced.
 - :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor.
 
 Class names are resolved only among modules already imported (the config's classes,
@@ -176,17 +178,77 @@ def _plain(value: Any) -> bool:
     return value is None or isinstance(value, (bool, int, float, str))
 
 
-def checkpoint_init_args(ckpt: dict[str, Any], init_args: Any) -> dict[str, Any]:
+#: model options a checkpoint never restores: linked from the data, or about the run
+#: itself (``reinit_states``: what a resumed fit does with learned states)
+NOT_RESTORED = ("input_dim", "reinit_states")
+#: model options whose checkpoint value must be the config's: restoring it silently
+#: would make the model refuse the config's data
+MUST_MATCH = ("objective",)
+
+
+def given_model_options(argv: list[str]) -> set[str]:
+    """The model options set on the command line ``argv``: ``--model.init_args.lr=0.5``,
+    ``--model.init_args.lr 0.5`` or ``--model.lr=0.5`` give ``lr``."""
+    found = set()
+    for arg in argv:
+        m = re.fullmatch(r"--model\.(?:init_args\.)?(\w+)(=.*)?", arg, re.S)
+        if m and m.group(1) not in ("help", "class_path", "init_args", "dict_kwargs"):
+            found.add(m.group(1))
+    return found
+
+
+def checkpoint_init_args(
+    ckpt: dict[str, Any], init_args: Any, given: set[str] | frozenset[str] = frozenset()
+) -> dict[str, Any]:
     """The checkpoint's hyperparameters that restore the config's ``init_args``: keys the
     config already has with a plain value, given plain values (never a class path),
-    except ``input_dim`` (linked from the data)."""
+    except :data:`NOT_RESTORED` and the options ``given`` on the command line (which
+    :func:`refuse_changed_options` has compared)."""
     hparams = ckpt.get("hyper_parameters") or {}
     current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
     return {
         k: v
         for k, v in hparams.items()
-        if k in current and k != "input_dim" and _plain(v) and _plain(current[k])
+        if k in current
+        and k not in NOT_RESTORED
+        and k not in given
+        and _plain(v)
+        and _plain(current[k])
     }
+
+
+def refuse_changed_options(
+    ckpt: dict[str, Any], init_args: Any, given: set[str], where: str
+) -> None:
+    """A run from a checkpoint keeps the options it was trained with: a model option
+    ``given`` on the command line with another value than the checkpoint's, or one of
+    :data:`MUST_MATCH` that the config sets otherwise, is a :class:`CLIError` naming
+    both values (never silently replaced; :data:`NOT_RESTORED` excepted)."""
+    hparams = ckpt.get("hyper_parameters") or {}
+    current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
+    for k in [*sorted(given), *MUST_MATCH]:
+        if k in NOT_RESTORED or k not in hparams or k not in current:
+            continue
+        saved, value = hparams[k], current[k]
+        if not (_plain(saved) and _plain(value)) or _same(saved, value):
+            continue
+        if k in given:
+            raise CLIError(
+                f"--model.init_args.{k}={value}: {where} was trained with {k}={saved!r}, and "
+                "a run from a checkpoint keeps the options it was trained with: remove the "
+                "option, or fit anew without --ckpt_path"
+            )
+        raise CLIError(
+            f"{where} was trained with {k}={saved!r} but the config sets {k}: {value!r}: use "
+            "the config the checkpoint was trained with"
+        )
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal plain values, a list equal to a tuple of the same items."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return list(a) == list(b)
+    return a == b
 
 
 # ------------------------------------------------------------------------ starts

@@ -20,7 +20,7 @@ from torchmetrics import MeanMetric
 
 from hnn_pl.models.baseline import Baseline
 from hnn_pl.models.hnn import HNN
-from hnn_pl.models.recipe import RecipeModel
+from hnn_pl.models.recipe import RecipeModel, is_count, is_weight
 from hnn_pl.nets import PixelDecoder, PixelEncoder
 
 #: the loss terms, in the order they are logged (``train/<name>``, ``val/<name>``, …)
@@ -78,8 +78,29 @@ class AutoencoderDynamicsModel(RecipeModel):
         **kwargs,
     ) -> None:
         super().__init__(weight_decay=weight_decay, **kwargs)
-        if latent_dim < 2 or latent_dim % 2:
+        if not is_count(latent_dim, 2) or latent_dim % 2:
             raise ValueError(f"latent_dim must be even and >= 2 (z = (q, p)), got {latent_dim}")
+        counts = dict(
+            input_dim=input_dim,
+            hidden_dim=hidden_dim,
+            field_hidden_dim=field_hidden_dim,
+            field_n_hidden=field_n_hidden,
+        )
+        weights = dict(
+            recon_weight=recon_weight,
+            canonical_weight=canonical_weight,
+            hnn_weight=hnn_weight,
+            input_noise=input_noise,
+            field_weight_decay=0.0 if field_weight_decay is None else field_weight_decay,
+        )
+        for name, value in counts.items():
+            if not is_count(value):
+                raise ValueError(f"{name} must be an integer >= 1: {value}")
+        for name, value in weights.items():
+            if not is_weight(value):
+                raise ValueError(f"{name} must be finite and >= 0: {value}")
+        if not (is_weight(frame_dt) and frame_dt > 0):
+            raise ValueError(f"frame_dt must be finite and > 0: {frame_dt}")
         self.encoder = PixelEncoder(input_dim, hidden_dim, latent_dim, ae_activation)
         self.decoder = PixelDecoder(latent_dim, hidden_dim, input_dim, ae_activation)
         self.field = self.build_field(

@@ -10,10 +10,136 @@ import torch
 from torch import Tensor, nn
 from torchmetrics import MeanSquaredError
 
-from hnn_pl.models.recipe import RecipeModel
+from hnn_pl.models.recipe import RecipeModel, is_count, is_weight
 
 OBJECTIVES = ("derivative", "trajectory")
 LEARNED_STATES = ("none", "sample", "trajectory")
+
+#: the options only the trajectory objective uses, with their defaults
+TRAJECTORY_OPTIONS: dict[str, Any] = {
+    "traj_method": "rk4",
+    "substeps": 1,
+    "learned_states": "none",
+    "state_weight": 1.0,
+    "continuity_weight": 0.0,
+    "reinit_states": False,
+}
+#: of those, the ones that act on learned states only
+STATES_OPTIONS = ("state_weight", "continuity_weight", "reinit_states")
+
+#: the checkpoint key of :func:`observed_data` of the data the learned states were learned on
+STATES_KEY = "hnn_pl_states_data"
+
+
+def refuse_unused_options(objective: str, learned_states: str, options: dict[str, Any]) -> None:
+    """One-line ``ValueError`` naming the options of :data:`TRAJECTORY_OPTIONS` set to
+    other than their defaults that would do nothing: all of them with the derivative
+    objective, those of :data:`STATES_OPTIONS` without learned states."""
+    unused = [
+        k
+        for k, v in options.items()
+        if v != TRAJECTORY_OPTIONS[k]
+        and (objective == "derivative" or (learned_states == "none" and k in STATES_OPTIONS))
+    ]
+    if not unused:
+        return
+    given = ", ".join(f"{k}={options[k]!r}" for k in unused)
+    if objective == "derivative":
+        raise ValueError(
+            f"model.init_args {given}: only the trajectory objective uses them, and objective "
+            "is 'derivative': remove them, or set model.init_args.objective: trajectory"
+        )
+    raise ValueError(
+        f"model.init_args {given}: they act on learned states, and learned_states is 'none': "
+        "remove them, or set model.init_args.learned_states: sample (or trajectory)"
+    )
+
+
+def observations_fingerprint(obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor) -> str:
+    """SHA-256 (hex) over the dtype, shape and bytes of a training split's observed
+    samples ``obs_y (S, ·)``, times ``obs_t (S,)`` and trajectory ids ``obs_traj (S,)``,
+    as served: equal exactly when the observations are (one pass over ``S·(D + 2)``
+    values)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for name, value in (("y", obs_y), ("t", obs_t), ("traj", obs_traj)):
+        value = value.detach().cpu().contiguous()
+        digest.update(f"{name}:{value.dtype}:{tuple(value.shape)}".encode())
+        digest.update(value.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
+
+
+def observed_data(
+    obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor, source: str, learned_states: str
+) -> dict[str, Any]:
+    """What learned states are learned on: ``{"sha256"}`` (:func:`observations_fingerprint`),
+    ``{"source"}`` (a name for messages) and ``{"rows"}``, the number of states they give
+    (``S`` for ``"sample"``, the ``M`` trajectories for ``"trajectory"``)."""
+    rows = len(obs_y) if learned_states == "sample" else int(torch.unique(obs_traj).numel())
+    sha = observations_fingerprint(obs_y, obs_t, obs_traj)
+    return {"sha256": sha, "source": source, "rows": rows}
+
+
+def data_source(datamodule: Any) -> str:
+    """A DataModule's data named for messages: its class and recording path, or its
+    system, number of trajectories and seed; ``keep_fraction`` and ``observe`` when not
+    the defaults."""
+    name = type(datamodule).__name__
+    path = getattr(datamodule, "path", None)
+    if path is not None:
+        what = f"{name} {path}"
+    else:
+        system = (getattr(datamodule, "hparams", None) or {}).get("system") or {}
+        cls = str(system.get("class_path", "")).rsplit(".", 1)[-1]
+        seed = getattr(datamodule, "seed", None)
+        n = getattr(datamodule, "n_trajectories", None)
+        parts = [cls] if cls else []
+        parts += [f"{n} trajectories"] if isinstance(n, int) else []
+        parts += [f"seed {seed}"] if seed is not None else []
+        what = f"{name}({', '.join(parts)})"
+    keep = getattr(datamodule, "keep_fraction", 1.0)
+    extra = [f"keep_fraction {keep}"] if keep != 1.0 else []
+    if getattr(datamodule, "observe", "states") != "states":
+        extra.append(f"observe {datamodule.observe}")
+    return what + (f" ({', '.join(extra)})" if extra else "")
+
+
+def same_data(a: dict[str, Any] | None, rows_a: int, b: dict[str, Any] | None, rows_b: int) -> bool:
+    """Whether states learned on ``a`` (``rows_a`` of them) fit data ``b``: the same
+    fingerprint; without one on either side, the same number of states."""
+    if a and b and a.get("sha256") and b.get("sha256"):
+        return a["sha256"] == b["sha256"]
+    return rows_a == rows_b
+
+
+def other_data(
+    where: str, saved: dict[str, Any] | None, states: Tensor, data: dict[str, Any]
+) -> str:
+    """The one line refusing ``states`` learned on ``saved`` for a fit on ``data``."""
+
+    def named(d: dict[str, Any] | None, rows: int) -> str:
+        if not d:
+            return f"data without a fingerprint ({rows} states)"
+        return f"{d['source']} (data {d['sha256'][:12]}, {d['rows']} states)"
+
+    return (
+        f"{where}: its learned states were learned on {named(saved, len(states))}, but this fit's "
+        f"data is {named(data, data['rows'])}: fit on the data they were learned on, or set "
+        "model.init_args.reinit_states: true to start them from these observations"
+    )
+
+
+def forget_last_parameter(checkpoint: dict[str, Any]) -> None:
+    """Drop, in ``checkpoint``'s optimiser states, the moments of the last parameter
+    (the learned states: :meth:`DynamicsModel.param_groups` puts them last), which start
+    anew; L-BFGS keeps one history over all parameters: dropped whole."""
+    for opt in checkpoint.get("optimizer_states") or []:
+        groups = opt.get("param_groups") or []
+        if len(groups) == 1:
+            opt["state"] = {}
+        elif groups and groups[-1].get("params"):
+            (opt.get("state") or {}).pop(groups[-1]["params"][-1], None)
 
 
 def with_momenta(obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor, state_dim: int) -> Tensor:
@@ -66,6 +192,19 @@ class DynamicsModel(RecipeModel):
     every state and the field through windows of a few samples. ``val/loss`` and ``test/loss``:
     the first term on held-out windows from their observed starts.
 
+    **Learned states belong to their data.** With the states, a checkpoint keeps the
+    SHA-256 of the training observations they were learned on and a name for them
+    (:func:`observed_data`). A fit resumed from it (``fit --ckpt_path``), or a second
+    fit of the same object, on other observations is refused in one line naming both
+    (never a size mismatch, never the old states used silently), unless
+    ``reinit_states``: then the states start anew from the new observations (and
+    their optimiser moments with them); the field's weights are kept.
+
+    **Options act or are refused.** The options only the trajectory objective uses
+    (:data:`TRAJECTORY_OPTIONS`) set to other than their defaults with
+    ``objective="derivative"``, and those acting on learned states without them, are
+    refused in one line; so are data it would not use (:meth:`check_data`).
+
     Args:
         input_dim: ``2k``, the state size (linked from the DataModule by the CLI).
         hidden_dim: ``h``, the MLP's width (200 in the paper).
@@ -79,6 +218,9 @@ class DynamicsModel(RecipeModel):
         state_weight: weight of the learned states' fit to the observations.
         continuity_weight: weight of the integration's fit to the learned states of
             the window's later samples (``learned_states="sample"``; 0: off).
+        reinit_states: on observations other than the learned states were learned on
+            (a resumed fit, a second fit): start them anew from these instead of
+            refusing (``False``).
         **kwargs: the training recipe, :class:`~hnn_pl.models.recipe.RecipeModel`'s
             ``lr``, ``weight_decay``, ``optimizer``, ``schedule``, … (the paper's: Adam,
             constant rate).
@@ -96,12 +238,18 @@ class DynamicsModel(RecipeModel):
         learned_states: str = "none",
         state_weight: float = 1.0,
         continuity_weight: float = 0.0,
+        reinit_states: bool = False,
         **kwargs,
     ) -> None:
         from hnn_pl.integrate import WINDOW_METHODS
 
         super().__init__(**kwargs)
-        if input_dim < 2 or input_dim % 2 or hidden_dim < 1 or n_hidden < 1:
+        if not (
+            is_count(input_dim, 2)
+            and input_dim % 2 == 0
+            and is_count(hidden_dim)
+            and is_count(n_hidden)
+        ):
             raise ValueError(
                 "input_dim must be even and >= 2 (y = (q, p)), hidden_dim and n_hidden >= 1; "
                 f"got input_dim={input_dim}, hidden_dim={hidden_dim}, n_hidden={n_hidden}"
@@ -112,23 +260,45 @@ class DynamicsModel(RecipeModel):
                 traj_method in WINDOW_METHODS,
                 f"traj_method must be one of {WINDOW_METHODS}: {traj_method!r}",
             ),
-            (substeps >= 1, f"substeps must be >= 1: {substeps}"),
+            (is_count(substeps), f"substeps must be an integer >= 1: {substeps}"),
             (
                 learned_states in LEARNED_STATES,
                 f"learned_states must be one of {LEARNED_STATES}: {learned_states!r}",
             ),
-            (state_weight >= 0, f"state_weight must be >= 0: {state_weight}"),
+            (is_weight(state_weight), f"state_weight must be finite and >= 0: {state_weight}"),
             (
-                continuity_weight >= 0 and (not continuity_weight or learned_states == "sample"),
-                f"continuity_weight must be >= 0, and > 0 only with learned_states: sample: "
-                f"{continuity_weight} with {learned_states!r}",
+                is_weight(continuity_weight),
+                f"continuity_weight must be finite and >= 0: {continuity_weight}",
+            ),
+            (
+                isinstance(reinit_states, bool),
+                f"reinit_states must be true or false: {reinit_states!r}",
             ),
         ]:
             if not ok:
                 raise ValueError(message)
+        refuse_unused_options(
+            objective,
+            learned_states,
+            dict(
+                traj_method=traj_method,
+                substeps=substeps,
+                learned_states=learned_states,
+                state_weight=state_weight,
+                continuity_weight=continuity_weight,
+                reinit_states=reinit_states,
+            ),
+        )
+        if continuity_weight and learned_states != "sample":
+            raise ValueError(
+                f"continuity_weight > 0 only with learned_states: sample: {continuity_weight} "
+                f"with {learned_states!r}"
+            )
         self.objective, self.traj_method, self.substeps = objective, traj_method, substeps
         self.learned_states, self.state_weight = learned_states, state_weight
-        self.continuity_weight = continuity_weight
+        self.continuity_weight, self.reinit_states = continuity_weight, reinit_states
+        #: what the learned states were learned on (:func:`observed_data`), or ``None``
+        self.states_data: dict[str, Any] | None = None
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
         self.register_parameter("states", None)
         self.register_buffer("traj_first", None, persistent=False)
@@ -160,14 +330,33 @@ class DynamicsModel(RecipeModel):
 
     # ------------------------------------------------------------ learned states
 
-    def init_states(self, obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor) -> None:
+    def init_states(
+        self,
+        obs_y: Tensor,
+        obs_t: Tensor,
+        obs_traj: Tensor,
+        source: str = "the given observations",
+    ) -> None:
         """Create the learned states from the training split's observed samples
-        ``obs_y (S, 2k)``, their times ``obs_t (S,)`` and trajectory ids ``obs_traj (S,)``
-        (contiguous, time-ordered): ``(S, 2k)`` for ``"sample"``, each trajectory's
-        first sample ``(M, 2k)`` for ``"trajectory"``; nothing for ``"none"``, for the
-        derivative objective, or once they exist."""
+        ``obs_y (S, 2k)`` (or positions ``(S, k)``), their times ``obs_t (S,)`` and
+        trajectory ids ``obs_traj (S,)`` (contiguous, time-ordered): ``(S, 2k)`` for
+        ``"sample"``, each trajectory's first sample ``(M, 2k)`` for ``"trajectory"``;
+        nothing for ``"none"`` or for the derivative objective.
+
+        States that exist already are kept if they were learned on these observations
+        (the same :func:`observed_data` fingerprint); learned on other data (a second
+        fit of this object on another DataModule) they raise a one-line ``ValueError``
+        naming both, or with ``reinit_states`` are made anew from these. ``source``
+        names the observations in that message."""
         if self.learned_states == "none" or self.objective != "trajectory":
             return
+        data = observed_data(obs_y, obs_t, obs_traj, source, self.learned_states)
+        if self.states is not None and not same_data(
+            self.states_data, len(self.states), data, data["rows"]
+        ):
+            if not self.reinit_states:
+                raise ValueError(other_data("this model", self.states_data, self.states, data))
+            self.states = None
         first = torch.ones_like(obs_traj, dtype=torch.bool)
         first[1:] = obs_traj[1:] != obs_traj[:-1]
         self.traj_first = first.nonzero().flatten().to(self.device)
@@ -176,25 +365,135 @@ class DynamicsModel(RecipeModel):
             full = with_momenta(obs_y, obs_t, obs_traj, self.hparams.input_dim)
             init = full if self.learned_states == "sample" else full[self.traj_first]
             self.states = nn.Parameter(init.detach().clone().to(self.device, self.dtype))
+        self.states_data = data
 
-    def setup(self, stage: str) -> None:
-        dm = self.trainer.datamodule if self._trainer is not None else None
-        if dm is not None and stage == "fit" and getattr(dm, "observe", "") == "positions":
-            if self.objective == "trajectory" and self.learned_states == "none":
+    def check_data(self, datamodule: Any, stage: str = "fit") -> None:
+        """Refuse, in one line, data this model cannot use as configured (before any run
+        is written; the CLI calls it when the classes are built, ``setup`` again):
+        windows for the derivative objective or none for the trajectory objective,
+        ``keep_fraction`` < 1 with the derivative objective (it thins only the windows'
+        tables), and for ``stage="fit"`` positions alone without learned states.
+        ``stage="predict"`` passes: its loader serves states whatever the objective."""
+        if stage == "predict":
+            return
+        window = getattr(datamodule, "window", None)
+        keep = getattr(datamodule, "keep_fraction", 1.0)
+        if self.objective == "derivative" and window is not None:
+            raise ValueError(
+                f"data.init_args.window: {window} serves windows, which only the trajectory "
+                "objective uses: set model.init_args.objective: trajectory, or window: null"
+            )
+        if self.objective == "derivative" and keep != 1.0:
+            raise ValueError(
+                f"data.init_args.keep_fraction: {keep} thins only the observed trajectories, "
+                "which the derivative objective does not use: remove it, or set "
+                "model.init_args.objective: trajectory (with data.init_args.window)"
+            )
+        if self.objective == "trajectory" and hasattr(datamodule, "window") and window is None:
+            raise ValueError(
+                "model.init_args.objective: trajectory needs windows of observed samples: "
+                "set data.init_args.window (K >= 2)"
+            )
+        positions = getattr(datamodule, "observe", "") == "positions"
+        if stage == "fit" and positions and self.objective == "trajectory":
+            if self.learned_states == "none":
                 raise ValueError(
                     "positions alone give no momenta to start a window from: set "
                     "model.init_args.learned_states: sample (or trajectory)"
                 )
-        if self.learned_states != "none" and dm is not None and stage == "fit":
+
+    def setup(self, stage: str) -> None:
+        dm = self.trainer.datamodule if self._trainer is not None else None
+        if dm is None:
+            return
+        self.check_data(dm, stage)
+        if self.learned_states != "none" and self.objective == "trajectory" and stage == "fit":
             if not hasattr(dm, "obs_y_train"):
                 dm.setup(stage)
-            self.init_states(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train)
+            self.init_states(dm.obs_y_train, dm.obs_t_train, dm.obs_traj_train, data_source(dm))
 
-    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        super().on_load_checkpoint(checkpoint)
-        saved = checkpoint.get("state_dict", {}).get("states")
-        if saved is not None and self.states is None:
-            self.states = nn.Parameter(torch.zeros_like(saved))
+    def fit_data(self, datamodule: Any) -> dict[str, Any] | None:
+        """What this fit's learned states are (or will be) learned on: those of the
+        states it holds, else :func:`observed_data` of ``datamodule``'s training split
+        (set up if needed); ``None`` without learned states or observations."""
+        if self.learned_states == "none" or self.objective != "trajectory":
+            return None
+        if self.states is not None and self.states_data is not None:
+            return self.states_data
+        if datamodule is None:
+            return None
+        if not hasattr(datamodule, "obs_y_train"):
+            datamodule.setup("fit")
+        obs = [getattr(datamodule, f"obs_{k}_train", None) for k in ("y", "t", "traj")]
+        if any(o is None for o in obs):
+            return None
+        return observed_data(*obs, data_source(datamodule), self.learned_states)
+
+    def check_checkpoint(
+        self,
+        checkpoint: dict[str, Any],
+        datamodule: Any = None,
+        where: str = "the checkpoint",
+        stage: str = "test",
+    ) -> None:
+        """:meth:`RecipeModel.check_checkpoint`, and for ``stage="fit"`` (a resumed fit)
+        the learned states: a checkpoint's states learned on other data than this fit's
+        (another :func:`observed_data` fingerprint, or without one another number of
+        states) are refused in one line naming both, unless ``reinit_states``; a
+        checkpoint without states for a model that learns them, or the reverse, too."""
+        super().check_checkpoint(checkpoint, datamodule, where, stage)
+        if stage != "fit":
+            return
+        saved = (checkpoint.get("state_dict") or {}).get("states")
+        learns = self.learned_states != "none" and self.objective == "trajectory"
+        if (saved is not None) != learns:
+            has = "holds learned states" if saved is not None else "holds no learned states"
+            raise ValueError(
+                f"{where} {has} but this model has learned_states={self.learned_states!r} "
+                f"(objective {self.objective!r}): resume with the options it was trained with"
+            )
+        data = self.fit_data(datamodule)
+        if saved is None or data is None or self.reinit_states:
+            return
+        saved_data = checkpoint.get(STATES_KEY)
+        if not same_data(saved_data, len(saved), data, data["rows"]):
+            raise ValueError(other_data(where, saved_data, saved, data))
+
+    def prepare_load(
+        self,
+        checkpoint: dict[str, Any],
+        datamodule: Any = None,
+        where: str = "the checkpoint",
+        stage: str = "test",
+    ) -> None:
+        """:meth:`check_checkpoint`, then fit the learned states to the checkpoint's:
+        resuming on the data they were learned on, loaded as saved; on other data with
+        ``reinit_states``, this fit's new states replace the saved ones (and their
+        optimiser moments are dropped); otherwise (evaluation) the model takes the
+        checkpoint's states, whatever their number."""
+        self.check_checkpoint(checkpoint, datamodule, where, stage)
+        state = checkpoint.get("state_dict") or {}
+        saved = state.get("states")
+        if saved is None:
+            return
+        if stage == "fit" and self.states is not None:
+            if not same_data(
+                checkpoint.get(STATES_KEY), len(saved), self.states_data, len(self.states)
+            ):
+                state["states"] = self.states.detach().clone()
+                checkpoint[STATES_KEY] = self.states_data
+                forget_last_parameter(checkpoint)
+            return
+        if self.states is None or self.states.shape != saved.shape:
+            self.states = nn.Parameter(
+                torch.zeros_like(saved, dtype=self.dtype, device=self.device)
+            )
+        self.states_data = checkpoint.get(STATES_KEY)
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        super().on_save_checkpoint(checkpoint)
+        if self.states is not None and self.states_data is not None:
+            checkpoint[STATES_KEY] = dict(self.states_data)
 
     def param_groups(self) -> list[dict[str, Any]]:
         """The field's parameters with ``weight_decay``; the learned states without."""

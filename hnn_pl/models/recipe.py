@@ -9,6 +9,7 @@ its meaning whatever ``inner_steps`` is.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable
 from typing import Any
 
@@ -16,12 +17,33 @@ import lightning as L
 import torch
 from torch import Tensor
 
-from hnn_pl.safe_io import check_model_class, class_name
+from hnn_pl.safe_io import (
+    check_finite_weights,
+    check_model_class,
+    check_same_system,
+    check_state_shapes,
+    class_name,
+)
 
 OPTIMIZERS = ("adam", "adamw", "lbfgs")
 SCHEDULES = ("constant", "cosine", "onecycle")
 #: skipped non-finite steps (``on_nonfinite="skip"``) after which the fit stops anyway
 MAX_SKIPS = 10
+
+
+def is_count(value: Any, least: int = 1) -> bool:
+    """Whether ``value`` is an integer (not a bool) ``>= least``."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= least
+
+
+def is_weight(value: Any) -> bool:
+    """Whether ``value`` is a finite real number ``>= 0`` (not a bool)."""
+    return (
+        isinstance(value, numbers.Real)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and value >= 0
+    )
 
 
 class RecipeModel(L.LightningModule):
@@ -67,19 +89,18 @@ class RecipeModel(L.LightningModule):
         on_nonfinite: str = "stop",
     ) -> None:
         super().__init__()
-        finite = math.isfinite
         for ok, message in [
-            (finite(lr) and lr > 0, f"lr must be finite and > 0, got {lr}"),
-            (
-                finite(weight_decay) and weight_decay >= 0,
-                f"weight_decay must be >= 0: {weight_decay}",
-            ),
+            (is_weight(lr) and lr > 0, f"lr must be finite and > 0, got {lr}"),
+            (is_weight(weight_decay), f"weight_decay must be finite and >= 0: {weight_decay}"),
             (optimizer in OPTIMIZERS, f"optimizer must be one of {OPTIMIZERS}, got {optimizer!r}"),
             (schedule in SCHEDULES, f"schedule must be one of {SCHEDULES}, got {schedule!r}"),
-            (warmup_steps >= 0 and inner_steps >= 1, "need warmup_steps >= 0, inner_steps >= 1"),
             (
-                grad_clip is None or (finite(grad_clip) and grad_clip > 0),
-                f"bad grad_clip {grad_clip}",
+                is_count(warmup_steps, 0) and is_count(inner_steps),
+                f"need integers warmup_steps >= 0, inner_steps >= 1: {warmup_steps}, {inner_steps}",
+            ),
+            (
+                grad_clip is None or (is_weight(grad_clip) and grad_clip > 0),
+                f"grad_clip must be finite and > 0, or null: {grad_clip}",
             ),
             (
                 on_nonfinite in ("stop", "skip"),
@@ -105,10 +126,73 @@ class RecipeModel(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["hnn_pl_model_class"] = class_name(type(self))
 
+    def check_checkpoint(
+        self,
+        checkpoint: dict[str, Any],
+        datamodule: Any = None,
+        where: str = "the checkpoint",
+        stage: str = "test",
+    ) -> None:
+        """Refuse, in one ``ValueError`` line naming ``where``, a checkpoint (a dict as
+        :func:`~hnn_pl.safe_io.load_checkpoint` returns) of another model class (a
+        Baseline's weights under an HNN config would otherwise be tested under the HNN's
+        name), with non-finite weights, or trained on another system than
+        ``datamodule``'s (:func:`~hnn_pl.safe_io.check_same_system`). ``stage``: what
+        it is loaded for (``"fit"``: resumed)."""
+        check_model_class(checkpoint, type(self), where)
+        check_finite_weights(checkpoint, where)
+        check_same_system(checkpoint, datamodule, where)
+
+    def prepare_load(
+        self,
+        checkpoint: dict[str, Any],
+        datamodule: Any = None,
+        where: str = "the checkpoint",
+        stage: str = "test",
+    ) -> None:
+        """What is done before a checkpoint's state dict is loaded: :meth:`check_checkpoint`
+        (subclasses also fit their parameters to the checkpoint's)."""
+        self.check_checkpoint(checkpoint, datamodule, where, stage)
+
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        """Refuse a checkpoint of another model class (a Baseline's weights under an HNN
-        config would otherwise be tested under the HNN's name)."""
-        check_model_class(checkpoint, type(self), "the checkpoint")
+        """:meth:`prepare_load` with the trainer's DataModule, checkpoint path and stage
+        (none of them in :meth:`load_from_checkpoint`)."""
+        trainer = self._trainer
+        dm = getattr(trainer, "datamodule", None)
+        path = getattr(trainer, "ckpt_path", None)
+        fn = getattr(getattr(trainer, "state", None), "fn", None)
+        stage = "fit" if fn is not None and fn == "fit" else "test"
+        self.prepare_load(checkpoint, dm, f"checkpoint {path}" if path else "the checkpoint", stage)
+
+    def load_trained(
+        self, checkpoint: dict[str, Any], datamodule: Any = None, where: str = "the checkpoint"
+    ) -> None:
+        """Load a checkpoint for evaluation as ``trainer.test(ckpt_path=…)`` does:
+        :meth:`prepare_load` (checks; learned states sized as saved), then its state dict,
+        strictly; a missing state dict or parameters of other names or shapes than this
+        model's are one ``ValueError`` line."""
+        state = checkpoint.get("state_dict")
+        if not isinstance(state, dict):
+            raise ValueError(f"{where}: holds no state_dict (not a Lightning checkpoint)")
+        self.prepare_load(checkpoint, datamodule, where, "test")
+        check_state_shapes(state, self.state_dict(), where)
+        self.load_state_dict(state)
+
+    def check_run(
+        self,
+        datamodule: Any,
+        stage: str,
+        checkpoint: dict[str, Any] | None = None,
+        where: str = "the checkpoint",
+    ) -> None:
+        """Everything a run (``stage``: ``fit``, ``validate``, ``test``, ``predict``) can
+        refuse before it writes anything: the data (``check_data``, if the model has one)
+        and the checkpoint it starts from (:meth:`check_checkpoint`)."""
+        check_data = getattr(self, "check_data", None)
+        if check_data is not None and datamodule is not None:
+            check_data(datamodule, stage)
+        if checkpoint is not None:
+            self.check_checkpoint(checkpoint, datamodule, where, stage)
 
     def in_own_dtype(self, fn: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
         """``fn`` applied to ``x`` cast to the parameters' dtype, returned in ``x``'s: a
