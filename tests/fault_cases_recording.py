@@ -52,7 +52,7 @@ def _bytes(suffix: str, content: Callable[[], bytes]) -> Callable[[Path], None]:
 
 
 def _gzip_csv() -> bytes:
-    return gzip.compress((HEADER + "\n".join(ROWS) + "\n").encode())
+    return gzip.compress((HEADER + "\n".join(ROWS) + "\n").encode(), mtime=0)
 
 
 def _pickle() -> bytes:

@@ -141,10 +141,14 @@ HEADER = "trajectory,time,q1,p1\n"
         ("a.csv", HEADER + "0,0,1,1\n0,1,1,1\n3,0,1,1\n", "line 4: trajectory 3 has one sample"),
         ("a.csv", b"\xff\xfe\x00garbage", "line 1: not a text file (not UTF-8)"),
         ("a.csv", HEADER.encode() + b"0,0,1,1\n0,1,\xe9,1\n", "line 3: not a text file"),
-        ("a.csv", gzip.compress(HEADER.encode()), "a gzip file, not a text file: decompress it"),
+        (
+            "a.csv",
+            gzip.compress(HEADER.encode(), mtime=0),
+            "a gzip file, not a text file: decompress it",
+        ),
         ("a.pt", b"garbage" * 10, "not a torch.save file of tensors (neither a zip archive nor"),
         ("a.pt", pickle.dumps([1, 2]), "not a torch.save file of tensors (damaged, or another"),
-        ("a.pt", gzip.compress(b"x"), "not a torch.save file of tensors (a gzip file)"),
+        ("a.pt", gzip.compress(b"x", mtime=0), "not a torch.save file of tensors (a gzip file)"),
         ("a.npz", b"garbage" * 10, "not an .npz archive of arrays (numpy.savez)"),
         (
             "a.npz",
