@@ -209,7 +209,9 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
     assert cfg["seed_everything"] == 0
     assert (trainer["accelerator"], trainer["devices"], trainer["max_epochs"]) == ("cpu", 1, -1)
     assert trainer["inference_mode"] is False and trainer["enable_model_summary"] is False
-    task = re.sub(r"(_fast|_traj)?(_baseline|_dissipative)?$", "", Path(config).stem)
+    task = re.sub(
+        r"(_fast|_traj|_positions(_fd)?)?(_baseline|_dissipative)?$", "", Path(config).stem
+    )
     assert [c["init_args"]["task"] for c in trainer["callbacks"]] == [task, task]
 
 
