@@ -92,7 +92,7 @@ class PixelPendulumData(TrajectoryDataModule):
     ) -> None:
         super().__init__(batch_size, full_batch_steps, seed, cache_dir, dtype)
         for name in ("window", "keep_fraction", "observe"):  # frames: no observed trajectories
-            self.hparams.pop(name)
+            self.hparams.pop(name, None)
         if n_frames < 4:
             raise ValueError(f"n_frames must be >= 4 (one sample needs 4 frames), got {n_frames}")
         if rollout_frames < 1:
