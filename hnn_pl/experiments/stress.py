@@ -412,14 +412,16 @@ FAULTS = [
         "would run code",
         "refused by comparing the names with the config's class as strings; nothing "
         "it names is imported",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[hostile-class-path], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[hostile-class-path], "
         "[hostile-model-class], test_checkpoint_hyperparameters_restore_only_plain_options",
     ),
     (
         "a checkpoint that is empty, truncated, random bytes, a directory or missing",
         "one line naming the file and the fault, before any data; never torch's "
         "`weights_only=False` advice",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[zero-byte-checkpoint], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[zero-byte-checkpoint], "
         "[truncated-checkpoint], [random-bytes-checkpoint], [checkpoint-is-a-directory], "
         "[missing-checkpoint], [missing-resume-checkpoint]",
     ),
@@ -438,7 +440,8 @@ FAULTS = [
     (
         "predict `starts:` missing, not a tensor, of the wrong width, or not finite",
         "one line before data or a version directory is made",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[starts-missing], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[starts-missing], "
         "[starts-not-a-tensor], [starts-wrong-width], [starts-not-finite]",
     ),
     (
@@ -446,7 +449,8 @@ FAULTS = [
         "is not float64 `(n, 2·dof)`",
         "one line naming the class and the fault, checked on the data's own starts "
         "when the data module is built",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[system-h-shape], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[system-h-shape], "
         "[system-h-nan], [system-sampler-width], [system-sampler-dtype]",
     ),
     (
@@ -481,25 +485,80 @@ FAULTS = [
     (
         "`max_steps: -5`, `--threads abc`, an empty config",
         "one line each",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[max-steps-negative], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[max-steps-negative], "
         "[threads-abc], [empty-config]",
     ),
     (
         "a misspelled option, class path or config name",
         "one line with the closest valid names (`did you mean hidden_dim?`), no usage dump",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[option-typo], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[option-typo], "
         "[trainer-option-typo], [class-path-typo], [short-class-typo], [config-name-typo]",
     ),
     (
         "`n_trajectories: 1000000000`",
         "refused in one line from an estimate of its memory against the machine's",
-        "test_every_cli_failure_is_one_line_and_leaves_nothing[data-beyond-memory], "
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[data-beyond-memory], "
         "test_a_data_set_beyond_the_machine_s_memory_is_refused_before_sampling",
     ),
     (
         "any other bad option value or config file",
         "one line, exit 2, nothing written",
         "test_bad_input.py",
+    ),
+    (
+        "a recording cell that is not a decimal number (`abc`, empty, `1_5`, `0x10`), a text "
+        "or non-integer id (`1e300`, `1.5`, beyond int64, uint64 ≥ 2⁶³)",
+        "one line naming the file, the line or row and the column; ids read as integers "
+        "exactly, never through float64",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[recording-abc], [recording-empty-cell], [recording-underscore], [recording-hex], "
+        "[recording-string-id], [recording-id-1e300], [recording-id-fraction], "
+        "[recording-id-beyond-int64], [recording-uint64-ids]",
+    ),
+    (
+        "a gzip file named `.csv`, a pickle named `.npz`, garbage or a numpy file named `.pt`",
+        "one line naming the file and what it is; nothing is unpickled and no numpy or torch "
+        "text or unsafe-load advice reaches the user",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[recording-gzip-csv], [recording-pickle-npz], [recording-garbage-pt], "
+        "[recording-numpy-pt]",
+    ),
+    (
+        "a recording whose time steps or values float32 cannot hold (Unix-epoch times are "
+        "shifted to start at 0 first), a trajectory shorter than the window",
+        "one line naming the row and `data.init_args.dtype: float64`, or the trajectory and "
+        "the window that fits",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[recording-float32-spacing], [recording-float32-overflow], "
+        "[recording-short-trajectory]",
+    ),
+    (
+        "resuming on another recording or another number of samples, or with options other "
+        "than the checkpoint's",
+        "one line naming both data sources (a fingerprint of the training observations is in "
+        "the checkpoint; `reinit_states: true` starts the states anew) or the option and the "
+        "checkpoint's value",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[resume-on-another-recording], [resume-on-more-samples], [resume-with-another-lr], "
+        "[resume-with-another-objective], [test-with-another-objective]",
+    ),
+    (
+        "a checkpoint with non-finite weights, or of another system than the config's",
+        "refused by `test`, `predict` and `bump` in one line naming the tensor or both systems",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[test-nan-checkpoint], [predict-nan-checkpoint], [bump-nan-checkpoint], "
+        "[test-another-system], [bump-another-system]",
+    ),
+    (
+        "trajectory-objective options with `objective: derivative`, `state_weight: .inf`",
+        "one line naming the options that would do nothing, or the value",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[derivative-learned-states], [derivative-continuity-weight], [derivative-substeps], "
+        "[derivative-traj-method], [derivative-state-weight], [derivative-keep-fraction], "
+        "[state-weight-inf]",
     ),
 ]
 
