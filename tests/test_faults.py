@@ -590,6 +590,30 @@ def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+@linux_only
+def test_ctrl_c_while_the_pool_starts_is_raised_once_it_has_started():
+    """``reproduce`` under load gets Ctrl-C while it spawns its workers: the interrupt
+    waits for the start to finish (none inside multiprocessing's launch), and a process
+    spawned meanwhile starts with SIGINT blocked (no traceback from a worker that has
+    not yet reached the initializer that ignores it)."""
+    import threading
+
+    from hnn_pl.commands.reproduce import _ctrl_c_held
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers live in the main thread")
+    blocked = "import signal; print(signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))"
+    handler, seen = signal.getsignal(signal.SIGINT), []
+    with pytest.raises(KeyboardInterrupt):
+        with _ctrl_c_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            child = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True)
+            seen.append(child.stdout.strip())
+    assert seen == ["True"]
+    assert signal.getsignal(signal.SIGINT) is handler
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
 def test_stability_md_lists_every_fault_with_a_test_that_exists():
     from hnn_pl.commands.stress import FAULTS, faults_section
 

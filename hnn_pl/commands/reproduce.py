@@ -17,9 +17,11 @@ import math
 import os
 import platform
 import shutil
+import signal
 import statistics
 import sys
 import tempfile
+import threading
 import time
 import traceback
 import uuid
@@ -679,31 +681,81 @@ def _run_jobs(
 ) -> None:
     """Run every job (in this process for ``--workers 0``), ``done(record)`` as each
     finishes. Workers ignore Ctrl-C and die with this process (:func:`_die_with_parent`);
-    on Ctrl-C or a dead worker the others are killed before the error goes on."""
+    a Ctrl-C while the pool starts is raised once it has started (:func:`_ctrl_c_held`);
+    on Ctrl-C or a dead worker the others are killed and the pool is shut down before
+    the error goes on (:func:`_stop`)."""
     kwargs = {"max_steps": args.max_steps, "recipe": args.recipe, "tta": not args.no_tta}
     if args.workers == 0:
         for k, job in enumerate(jobs, 1):
             done(_started(job, k, len(jobs), **kwargs, model_path=paths.get(job)))
         return
-    pool = ProcessPoolExecutor(
-        args.workers,
-        mp_context=get_context("spawn"),
-        initializer=_die_with_parent,
-        initargs=(os.getpid(),),
-    )
+    pool = None
     try:
-        futures = [
-            pool.submit(_started, job, k, len(jobs), **kwargs, model_path=paths.get(job))
-            for k, job in enumerate(jobs, 1)
-        ]
+        with _ctrl_c_held():
+            pool = ProcessPoolExecutor(
+                args.workers,
+                mp_context=get_context("spawn"),
+                initializer=_die_with_parent,
+                initargs=(os.getpid(),),
+            )
+            futures = [
+                pool.submit(_started, job, k, len(jobs), **kwargs, model_path=paths.get(job))
+                for k, job in enumerate(jobs, 1)
+            ]
         for future in as_completed(futures):
             done(future.result())
     except BaseException:
-        for process in list(getattr(pool, "_processes", {}).values()):
-            process.kill()
-        pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:
+            _stop(pool)
         raise
     pool.shutdown()
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Kill ``pool``'s workers and wait for its manager thread to wind down.
+
+    Not waiting (``shutdown(wait=False)``) leaves that thread closing its wake-up pipe
+    while the interpreter's exit hook (``concurrent.futures.process._python_exit``,
+    not under the pool's lock in Python 3.11) writes to it: ``OSError: [Errno 9] Bad
+    file descriptor`` at exit, under load. With the workers dead the thread ends at
+    once (it marks the pool broken and joins them)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.kill()
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextmanager
+def _ctrl_c_held() -> Iterator[None]:
+    """Ctrl-C (SIGINT) while the worker pool starts, raised as ``KeyboardInterrupt``
+    once it has started.
+
+    A ``KeyboardInterrupt`` inside multiprocessing's launch of a worker leaves a worker
+    the pool does not know (``reproduce`` then hangs at exit) or its pipes half made,
+    and a worker that gets the terminal's Ctrl-C before its initializer ignores it
+    prints a traceback. Meanwhile a SIGINT is recorded, and this thread blocks it: a
+    worker spawned now starts with it blocked, until :func:`_die_with_parent` ignores
+    and unblocks it (multiprocessing starts its resource tracker so; that start
+    unblocks SIGINT in the thread, so the tracker is started first). Signal handlers
+    live in the main thread: elsewhere, and without ``pthread_sigmask``, nothing is
+    held."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # runs a pending one
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def _die_with_parent(parent: int) -> None:
@@ -711,10 +763,9 @@ def _die_with_parent(parent: int) -> None:
     by ``PR_SET_PDEATHSIG`` on Linux and a thread watching ``os.getppid()`` anywhere,
     so a killed ``reproduce`` leaves no worker (nor, with its pipes closed, the
     multiprocessing resource tracker) behind."""
-    import signal
-    import threading
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # see _ctrl_c_held
     if sys.platform.startswith("linux"):
         import ctypes
 
