@@ -17,6 +17,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import fault_cases_commands
 import fault_cases_recording
 import pytest
 import torch
@@ -81,6 +82,8 @@ def _files(kind: str, tmp: Path) -> None:
     """Make the file a case needs in its working directory ``tmp``."""
     if kind in fault_cases_recording.FILES:
         return fault_cases_recording.FILES[kind](tmp)
+    if kind in fault_cases_commands.FILES:
+        return fault_cases_commands.FILES[kind](tmp)
     if kind == "empty-config":
         (tmp / "empty.yaml").write_text("")
     elif kind == "base-missing":
@@ -230,7 +233,7 @@ CASES = {
         "--out results is a directory",
     ),
 }
-CASES |= fault_cases_recording.CASES
+CASES |= fault_cases_recording.CASES | fault_cases_commands.CASES
 
 
 class _Forks:
@@ -302,10 +305,9 @@ def test_every_cli_failure_is_one_line_and_leaves_nothing(case, cli_runs):
     code, stderr, new = cli_runs[case].result()
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert "Traceback" not in stderr, stderr
-    errors = [line for line in lines if "error:" in line]
-    assert code == 2 and len(errors) == 1 and errors[0] == lines[-1], stderr
-    assert lines[-1].startswith("python -m hnn_pl: error: ")
-    assert CASES[case][2] in lines[-1]
+    assert code == 2 and len(lines) == 1, stderr  # no "Seed set", device banner, warning
+    assert lines[0].startswith("python -m hnn_pl: error: ")
+    assert CASES[case][2] in lines[0]
     assert "weights_only" not in stderr
     leftovers = sorted(str(p) for p in new if "__pycache__" not in p.parts)
     assert leftovers == [], f"written: {leftovers}"  # MARKER too: evilmod was never imported
@@ -330,6 +332,49 @@ def test_checkpoint_hyperparameters_restore_only_plain_options():
     }
     current = SimpleNamespace(hidden_dim=200, n_hidden=2, input_dim=2, activation="tanh")
     assert checkpoint_init_args(ckpt, current) == {"n_hidden": 3, "activation": "softplus"}
+
+
+def _started_run(save_dir: Path):
+    """A trainer with the project's logger, its :class:`RefusedRun` taken before the run
+    starts, and the run directory as Lightning leaves it at setup (an event file and
+    LightningCLI's ``config.yaml``)."""
+    from lightning.pytorch import Trainer
+
+    from hnn_pl.commands.cli import RefusedRun
+    from hnn_pl.loggers import TensorBoardLogger
+
+    logger = TensorBoardLogger(save_dir=str(save_dir), name="spring_hnn")
+    trainer = Trainer(logger=logger, accelerator="cpu", enable_progress_bar=False)
+    run = RefusedRun(trainer, "config.yaml")
+    logger.experiment.flush()
+    (Path(logger.log_dir) / "config.yaml").write_text("seed_everything: 0\n")
+    return logger, run
+
+
+def test_a_refused_run_takes_back_only_what_it_wrote(tmp_path):
+    logger, run = _started_run(tmp_path / "logs")
+    run.discard()
+    assert not (tmp_path / "logs").exists()
+
+    (tmp_path / "logs" / "spring_hnn" / "version_0").mkdir(parents=True)
+    (tmp_path / "logs" / "spring_hnn" / "notes.txt").write_text("mine\n")
+    logger, run = _started_run(tmp_path / "logs")
+    assert Path(logger.log_dir).name == "version_1"
+    run.discard()
+    kept = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "logs").rglob("*"))
+    assert kept == ["logs/spring_hnn", "logs/spring_hnn/notes.txt", "logs/spring_hnn/version_0"]
+
+    logger, run = _started_run(tmp_path / "ckpt")
+    checkpoint = Path(logger.log_dir) / "checkpoints" / "last.ckpt"
+    checkpoint.parent.mkdir()
+    checkpoint.write_bytes(b"weights")
+    run.discard()
+    assert checkpoint.is_file() and (checkpoint.parent.parent / "config.yaml").is_file()
+
+    logger, run = _started_run(tmp_path / "metrics")
+    logger.log_metrics({"train/loss": 1.0}, step=0)
+    run.discard()
+    assert (Path(logger.log_dir) / "config.yaml").is_file()
 
 
 def test_no_module_is_imported_by_a_name_read_from_a_file():

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from hnn_pl import tasks
-from hnn_pl.commands.cli_errors import OneLineParser
+from hnn_pl.commands.cli_errors import OneLineParser, non_negative_int, positive_int
 from hnn_pl.safe_io import write_atomic
 
 #: what the report says of a task beside its numbers (``"results"``) and how its
@@ -526,12 +526,19 @@ def main(argv: list[str] | None = None) -> int:
         help="paper: the paper's settings (TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
         "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml)",
     )
-    parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, …)")
+    parser.add_argument("--seeds", type=positive_int, default=3, help="number of seeds (0, 1, …)")
     parser.add_argument(
-        "--first-seed", type=int, default=0, help="start at this seed (extend a --merge run)"
+        "--first-seed",
+        type=non_negative_int,
+        default=0,
+        help="start at this seed (extend a --merge run)",
     )
-    parser.add_argument("--workers", type=int, default=2, help="processes; 0 runs in this process")
-    parser.add_argument("--max-steps", type=int, default=None, help="override every config's steps")
+    parser.add_argument(
+        "--workers", type=non_negative_int, default=2, help="processes; 0 runs in this process"
+    )
+    parser.add_argument(
+        "--max-steps", type=positive_int, default=None, help="override every config's steps"
+    )
     parser.add_argument(
         "--out",
         default=None,
@@ -558,9 +565,6 @@ def main(argv: list[str] | None = None) -> int:
         help="keep the runs already in the JSON file that this call does not redo",
     )
     args = parser.parse_args(argv)
-    bad_steps = args.max_steps is not None and args.max_steps < 1
-    if args.seeds < 1 or args.first_seed < 0 or args.workers < 0 or bad_steps:
-        parser.error("--seeds and --max-steps must be >= 1, --first-seed and --workers >= 0")
     if args.tasks is None:
         args.tasks = tasks.TRAJ_TASKS if args.recipe == "traj" else tasks.DEFAULT_TASKS
     out = Path(args.out) if args.out else _new_run_dir(args.recipe) / "RESULTS.md"
