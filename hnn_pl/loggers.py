@@ -25,6 +25,8 @@ class TensorBoardLogger(_TensorBoardLogger):
     ``hp_metric`` is written. A run that already has its summary (``test`` or
     ``predict`` logging into the run they evaluate) gets no second one. Runs are told
     apart by ``name`` (e.g. ``spring_hnn``): logs go to ``save_dir/name/version_N``.
+    ``metrics_logged`` says whether the run has logged a metric yet (a run refused
+    before that has nothing of its own to keep: :class:`hnn_pl.commands.cli.RefusedRun`).
 
     Args:
         save_dir, name, version: as Lightning's logger.
@@ -44,6 +46,7 @@ class TensorBoardLogger(_TensorBoardLogger):
         super().__init__(save_dir, name=name, version=version, **kwargs)
         self.hp_metrics = tuple(hp_metrics)
         self._hparams_summary_done = False
+        self.metrics_logged = False
 
     def _write_hparams_summary(self) -> None:
         if self._hparams_summary_done or not self.hparams:
@@ -60,6 +63,7 @@ class TensorBoardLogger(_TensorBoardLogger):
 
     @rank_zero_only
     def log_metrics(self, metrics: dict[str, Any], step: int | None = None) -> None:
+        self.metrics_logged = True
         self._write_hparams_summary()
         super().log_metrics(metrics, step)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import shutil
 
 import pytest
 import torch
@@ -71,3 +72,25 @@ def test_the_bump_command_writes_the_rollouts_and_a_figure(tmp_path, monkeypatch
     moved = saved["after"]["h"][0] - saved["before"]["h"][0]
     torch.testing.assert_close(moved, torch.full_like(moved, saved["delta"]), rtol=0, atol=1e-7)
     assert (tmp_path / "b" / "bump.png").stat().st_size > 10_000
+    h0 = saved["before"]["h"][0]
+    default = 0.2 * float(h0.max() - h0.min() + h0.abs().mean())
+    assert saved["delta"] == pytest.approx(default, rel=1e-12, abs=0)  # as --help says
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(ckpt, alone / "m.ckpt")
+    argv = ["bump", "--config", "spring_fast.yaml", "--ckpt_path", str(alone / "m.ckpt")]
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--t_end", "1", "--n_points", "5", "--starts", "1"])
+    assert info.value.code == 0 and (alone / "bump.pt").is_file()  # beside a loose checkpoint
+
+
+def test_bump_help_gives_each_number_its_range_and_default(capsys):
+    from hnn_pl.commands.bump import main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "ΔH_θ, a finite number (default: 20 % of the spread of H_θ over the bumped" in text
+    assert "0.2 (max H − min H + mean |H|)" in text
+    assert "rollout horizon > 0 (default: 10)" in text and ">= 2 (default: 200)" in text
+    assert "held-out starts to bump (default: 4)" in text

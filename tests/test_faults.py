@@ -17,6 +17,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import fault_cases_commands
 import fault_cases_recording
 import fault_cases_resume
 import pytest
@@ -84,6 +85,8 @@ def _files(kind: str, tmp: Path) -> None:
         return fault_cases_recording.FILES[kind](tmp)
     if kind in fault_cases_resume.FILES:
         return fault_cases_resume.FILES[kind](tmp)
+    if kind in fault_cases_commands.FILES:
+        return fault_cases_commands.FILES[kind](tmp)
     if kind == "empty-config":
         (tmp / "empty.yaml").write_text("")
     elif kind == "base-missing":
@@ -235,6 +238,7 @@ CASES = {
 }
 CASES |= fault_cases_recording.CASES
 CASES |= fault_cases_resume.CASES
+CASES |= fault_cases_commands.CASES
 
 
 class _Forks:
@@ -306,10 +310,9 @@ def test_every_cli_failure_is_one_line_and_leaves_nothing(case, cli_runs):
     code, stderr, new = cli_runs[case].result()
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert "Traceback" not in stderr, stderr
-    errors = [line for line in lines if "error:" in line]
-    assert code == 2 and len(errors) == 1 and errors[0] == lines[-1], stderr
-    assert lines[-1].startswith("python -m hnn_pl: error: ")
-    assert CASES[case][2] in lines[-1]
+    assert code == 2 and len(lines) == 1, stderr  # no "Seed set", device banner, warning
+    assert lines[0].startswith("python -m hnn_pl: error: ")
+    assert CASES[case][2] in lines[0]
     assert "weights_only" not in stderr
     leftovers = sorted(str(p) for p in new if "__pycache__" not in p.parts)
     assert leftovers == [], f"written: {leftovers}"  # MARKER too: evilmod was never imported
@@ -334,6 +337,49 @@ def test_checkpoint_hyperparameters_restore_only_plain_options():
     }
     current = SimpleNamespace(hidden_dim=200, n_hidden=2, input_dim=2, activation="tanh")
     assert checkpoint_init_args(ckpt, current) == {"n_hidden": 3, "activation": "softplus"}
+
+
+def _started_run(save_dir: Path):
+    """A trainer with the project's logger, its :class:`RefusedRun` taken before the run
+    starts, and the run directory as Lightning leaves it at setup (an event file and
+    LightningCLI's ``config.yaml``)."""
+    from lightning.pytorch import Trainer
+
+    from hnn_pl.commands.cli import RefusedRun
+    from hnn_pl.loggers import TensorBoardLogger
+
+    logger = TensorBoardLogger(save_dir=str(save_dir), name="spring_hnn")
+    trainer = Trainer(logger=logger, accelerator="cpu", enable_progress_bar=False)
+    run = RefusedRun(trainer, "config.yaml")
+    logger.experiment.flush()
+    (Path(logger.log_dir) / "config.yaml").write_text("seed_everything: 0\n")
+    return logger, run
+
+
+def test_a_refused_run_takes_back_only_what_it_wrote(tmp_path):
+    logger, run = _started_run(tmp_path / "logs")
+    run.discard()
+    assert not (tmp_path / "logs").exists()
+
+    (tmp_path / "logs" / "spring_hnn" / "version_0").mkdir(parents=True)
+    (tmp_path / "logs" / "spring_hnn" / "notes.txt").write_text("mine\n")
+    logger, run = _started_run(tmp_path / "logs")
+    assert Path(logger.log_dir).name == "version_1"
+    run.discard()
+    kept = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "logs").rglob("*"))
+    assert kept == ["logs/spring_hnn", "logs/spring_hnn/notes.txt", "logs/spring_hnn/version_0"]
+
+    logger, run = _started_run(tmp_path / "ckpt")
+    checkpoint = Path(logger.log_dir) / "checkpoints" / "last.ckpt"
+    checkpoint.parent.mkdir()
+    checkpoint.write_bytes(b"weights")
+    run.discard()
+    assert checkpoint.is_file() and (checkpoint.parent.parent / "config.yaml").is_file()
+
+    logger, run = _started_run(tmp_path / "metrics")
+    logger.log_metrics({"train/loss": 1.0}, step=0)
+    run.discard()
+    assert (Path(logger.log_dir) / "config.yaml").is_file()
 
 
 def test_no_module_is_imported_by_a_name_read_from_a_file():
@@ -592,6 +638,30 @@ def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
         "a worker process died (killed, or out of memory): 0 of 2 runs finished, nothing written"
     ), err
     assert not (tmp_path / "results").exists()
+
+
+@linux_only
+def test_ctrl_c_while_the_pool_starts_is_raised_once_it_has_started():
+    """``reproduce`` under load gets Ctrl-C while it spawns its workers: the interrupt
+    waits for the start to finish (none inside multiprocessing's launch), and a process
+    spawned meanwhile starts with SIGINT blocked (no traceback from a worker that has
+    not yet reached the initializer that ignores it)."""
+    import threading
+
+    from hnn_pl.experiments.collect import _ctrl_c_held
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers live in the main thread")
+    blocked = "import signal; print(signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))"
+    handler, seen = signal.getsignal(signal.SIGINT), []
+    with pytest.raises(KeyboardInterrupt):
+        with _ctrl_c_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            child = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True)
+            seen.append(child.stdout.strip())
+    assert seen == ["True"]
+    assert signal.getsignal(signal.SIGINT) is handler
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
 
 
 def test_stability_md_lists_every_fault_with_a_test_that_exists():

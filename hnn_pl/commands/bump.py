@@ -14,9 +14,18 @@ from hnn_pl.plotting import pyplot
 
 def main(argv: list[str] | None = None) -> int:
     """``hnn-pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
-    starts of a trained HNN and write ``bump.pt`` and ``bump.png`` beside the checkpoint."""
-    from hnn_pl.commands.cli import cli_main, resolve_checkpoint
-    from hnn_pl.commands.cli_errors import OneLineParser, program_name
+    starts of a trained HNN and write ``bump.pt`` and ``bump.png`` into its run."""
+    from hnn_pl.commands.cli import _run_directory, cli_main, resolve_checkpoint
+    from hnn_pl.commands.cli_errors import (
+        CLIError,
+        OneLineParser,
+        finite_float,
+        integer_at_least,
+        output_directory,
+        positive_float,
+        positive_int,
+        program_name,
+    )
     from hnn_pl.commands.config_paths import resolve_config
     from hnn_pl.safe_io import check_model_class, load_checkpoint, save_atomic
 
@@ -26,12 +35,30 @@ def main(argv: list[str] | None = None) -> int:
         "--ckpt_path", required=True, help="a checkpoint of an HNN model, or its run (as fit's)"
     )
     parser.add_argument(
-        "--delta", type=float, default=None, help="ΔH_θ (default: 20 %% of its spread)"
+        "--delta",
+        type=finite_float,
+        default=None,
+        help="ΔH_θ, a finite number (default: 20 %% of the spread of H_θ over the bumped "
+        "starts plus their mean |H_θ|: 0.2 (max H − min H + mean |H|))",
     )
-    parser.add_argument("--t_end", type=float, default=10.0, help="rollout horizon after the bump")
-    parser.add_argument("--n_points", type=int, default=200)
-    parser.add_argument("--starts", type=int, default=4, help="held-out starts to bump")
-    parser.add_argument("--out", type=Path, default=None, help="default: the checkpoint's run dir")
+    parser.add_argument(
+        "--t_end", type=positive_float, default=10.0, help="rollout horizon > 0 (default: 10)"
+    )
+    parser.add_argument(
+        "--n_points",
+        type=integer_at_least(2),
+        default=200,
+        help="rollout times from 0 to t_end, >= 2 (default: 200)",
+    )
+    parser.add_argument(
+        "--starts", type=positive_int, default=4, help="held-out starts to bump (default: 4)"
+    )
+    parser.add_argument(
+        "--out",
+        type=output_directory,
+        default=None,
+        help="a directory (default: the checkpoint's run, else the checkpoint's directory)",
+    )
     args = parser.parse_args(argv)
     config = resolve_config(args.config)
     args.ckpt_path = resolve_checkpoint(args.ckpt_path)
@@ -42,7 +69,10 @@ def main(argv: list[str] | None = None) -> int:
     model.load_trained(ckpt, dm, f"checkpoint {args.ckpt_path}")  # as fit saved it: states too
     model.eval()
     dm.setup("test")
-    starts = view_of(model).starts(dm)[: args.starts]
+    held_out = view_of(model).starts(dm)
+    if args.starts > len(held_out):
+        raise CLIError(f"--starts {args.starts}: the data holds {len(held_out)} held-out starts")
+    starts = held_out[: args.starts]
     t = torch.linspace(0, args.t_end, args.n_points, dtype=torch.float64)
     _, before = energy_bump(model, starts, 0.0, t)
     delta = args.delta
@@ -51,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
             before.h_pred[0].max() - before.h_pred[0].min() + before.h_pred[0].abs().mean()
         )
     _, after = energy_bump(model, starts, delta, t)
-    out = args.out or Path(args.ckpt_path).resolve().parent.parent
+    out = args.out or _run_directory(args.ckpt_path) or Path(args.ckpt_path).resolve().parent
     out.mkdir(parents=True, exist_ok=True)
     save_atomic(
         {"delta": delta, "before": before.as_dict(), "after": after.as_dict()}, out / "bump.pt"

@@ -42,11 +42,13 @@ from hnn_pl.commands.cli_errors import (
     check_ckpt_path,
     check_starts,
     check_threads,
+    check_trainer_numbers,
     checkpoint_init_args,
     given_model_options,
     one_line,
     program_name,
     refuse_changed_options,
+    user_error,
 )
 from hnn_pl.commands.config_paths import resolve_config_args
 from hnn_pl.safe_io import check_model_class, load_checkpoint, loaded_class
@@ -95,16 +97,37 @@ def quiet_args() -> list[str]:
 _NOT_RECIPE = ("--optimizer", "--lr_scheduler")
 
 
-class _DropTips(logging.Filter):
+#: Lightning's info lines (``lightning.pytorch.utilities.rank_zero``) that tell a run of
+#: this project nothing and would stand before a refusal's one line: its advertising
+#: tip, the device banner (the runs are on the CPU, :data:`TRAINER_DEFAULTS`) and the
+#: checkpoint it restores (the one ``--ckpt_path`` named, or :func:`resolve_checkpoint`'s)
+_NOISE = (
+    "💡",
+    "LitLogger",
+    "GPU available: ",
+    "TPU available: ",
+    "HPU available: ",
+    "Restoring states from the checkpoint path at ",
+    "Restored all states from the checkpoint at ",
+    "Loaded model weights from the checkpoint at ",
+)
+
+
+class _DropNoise(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
-        return "LitLogger" not in record.getMessage() and "💡" not in record.getMessage()
+        message = record.getMessage()
+        return not any(part in message for part in _NOISE)
+
+
+_DROP_NOISE = _DropNoise()
 
 
 def quiet_lightning() -> None:
-    """Drop Lightning's advertising tip, its pytree ``LeafSpec`` FutureWarning, its
-    warning about ``args`` beside ``sys.argv`` (we pass the resolved argv) and the
-    jsonargparse 4.49 deprecations that LightningCLI 2.6 triggers (not ours to fix)."""
-    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropTips())
+    """Drop Lightning's lines in :data:`_NOISE`, its pytree ``LeafSpec`` FutureWarning,
+    its warning about ``args`` beside ``sys.argv`` (we pass the resolved argv) and the
+    jsonargparse 4.49 deprecations that LightningCLI 2.6 triggers (not ours to fix).
+    The seed is set without a line (:meth:`HNNCLI._set_seed`)."""
+    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DROP_NOISE)
     warnings.filterwarnings("ignore", message=".*LeafSpec.*", category=FutureWarning)
     warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter is intended.*")
     warnings.filterwarnings("ignore", message=".*The dirpath has changed.*")
@@ -149,7 +172,11 @@ def choose_threads(requested: int | str | None = "auto") -> int:
 
 class HNNCLI(LightningCLI):
     """LightningCLI that links the DataModule's ``state_dim`` to the model's ``input_dim``
-    and sets torch's thread count (``--threads N|auto``, see :func:`choose_threads`)."""
+    and sets torch's thread count (``--threads N|auto``, see :func:`choose_threads`).
+
+    A refusal is the only line a command prints: the seed is set without Lightning's
+    line (:meth:`_set_seed`), and a run refused before it logged anything takes back
+    the files it made (:class:`RefusedRun`)."""
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data.state_dim", "model.init_args.input_dim", apply_on="instantiate")
@@ -194,11 +221,31 @@ class HNNCLI(LightningCLI):
             update = {sub: {"model": {"class_path": model.class_path, "init_args": restored}}}
             self.config = self.parser.parse_object(update, self.config)
 
+    def _set_seed(self) -> None:
+        """LightningCLI's seeding (``seed_everything``: a seed; ``true``: Lightning's,
+        ``$PL_GLOBAL_SEED`` else 0; ``false``: none), without its "Seed set to N" line
+        and "No seed found" warning; a seed beyond numpy's range is refused naming the
+        option."""
+        from lightning.fabric.utilities.seed import max_seed_value, seed_everything
+
+        config = self.config.get(str(self.subcommand), self.config)
+        seed = config.get("seed_everything")
+        if seed is False:
+            return
+        if seed is not True and not 0 <= seed <= max_seed_value:
+            raise CLIError(
+                f"seed_everything must be true, false or an integer in [0, {max_seed_value}], "
+                f"got {seed}"
+            )
+        seed = None if seed is True else seed
+        config["seed_everything"] = seed_everything(seed, workers=True, verbose=False)
+
     def before_instantiate_classes(self) -> None:
         import torch
 
         config = self.config.get(str(self.subcommand), self.config)
         torch.set_num_threads(choose_threads(config.get("threads", "auto")))
+        check_trainer_numbers(config.get("trainer", {}))
         _refuse_explicit_input_dim(config.get("model"))
         if "weights_only" in config and config["weights_only"] is None:
             config["weights_only"] = True  # a checkpoint cannot run code when loaded
@@ -256,6 +303,78 @@ class HNNCLI(LightningCLI):
         if check_run is not None and self.subcommand is not None:
             path = self.config.get(self.subcommand).get("ckpt_path")
             check_run(self.datamodule, self.subcommand, self._checkpoint, f"checkpoint {path}")
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        """Run ``subcommand``; if bad input stops it before it logged anything (a data
+        or model check at setup, a checkpoint that does not fit, the first batch),
+        :class:`RefusedRun` takes back the run's files, and the error goes on."""
+        config_file = self.save_config_kwargs.get("config_filename", "config.yaml")
+        run = RefusedRun(self.trainer, config_file)
+        try:
+            super()._run_subcommand(subcommand)
+        except Exception as err:
+            if user_error(err) is not None:
+                run.discard()
+            raise
+
+
+class RefusedRun:
+    """What a run refused after parsing leaves in its log directory, taken back.
+
+    Lightning makes the run's directory when the run starts (``…/name/version_N``:
+    making it reserves the version against a concurrent run) and writes the run's
+    ``config*.yaml`` (LightningCLI), ``hparams.yaml`` and an event file into it before
+    the data, the model and a resumed checkpoint are checked and the first batch
+    runs. A run stopped by bad input (:func:`~hnn_pl.commands.cli_errors.user_error`)
+    before it logged a metric or wrote any other file has nothing of its own:
+    :meth:`discard` removes those files (event files: this process's) and the
+    directories this run made. A run with metrics, a checkpoint or any other new file
+    is kept whole. Only the project's :class:`~hnn_pl.loggers.TensorBoardLogger` is
+    looked after.
+    """
+
+    def __init__(self, trainer: Any, config_file: str) -> None:
+        from hnn_pl.loggers import TensorBoardLogger
+
+        logger = getattr(trainer, "logger", None)
+        self.logger = logger if isinstance(logger, TensorBoardLogger) else None
+        if self.logger is None or not trainer.is_global_zero:
+            self.logger = None
+            return
+        self.run = Path(self.logger.log_dir)
+        self.made_dirs = [
+            d
+            for d in (Path(self.logger.save_dir), Path(self.logger.root_dir), self.run)
+            if not d.exists()
+        ]
+        self.names = (config_file, self.logger.NAME_HPARAMS_FILE)
+        self.before = self._files()
+
+    def _files(self) -> set[Path]:
+        return {p for p in self.run.rglob("*") if p.is_file()} if self.run.is_dir() else set()
+
+    def _bookkeeping(self, path: Path) -> bool:
+        """Whether ``path`` is the run's config, its hparams file or an event file of
+        this process (``events.out.tfevents.<time>.<host>.<pid>.<n>``)."""
+        if path.parent != self.run:
+            return False
+        event = path.name.startswith("events.out.tfevents.") and f".{os.getpid()}." in path.name
+        return event or path.name in self.names
+
+    def discard(self) -> None:
+        if self.logger is None or self.logger.metrics_logged:
+            return
+        self.logger.finalize("failed")  # closes the event file
+        new = self._files() - self.before
+        if not all(self._bookkeeping(path) for path in new):
+            return
+        for path in new:
+            path.unlink()
+        for directory in reversed(self.made_dirs):
+            try:
+                directory.rmdir()
+            except OSError:  # not empty: it holds what another run wrote meanwhile
+                return
 
 
 def resolve_checkpoint(path: str) -> str:

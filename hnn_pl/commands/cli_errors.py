@@ -11,6 +11,11 @@
   :func:`refuse_changed_options`: an option given on the command line (or the
   objective) that differs from the checkpoint's is refused, never silently replaced.
 - :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor.
+- the plain commands' numeric options are read by type functions (:func:`positive_int`,
+  :func:`finite_float`, …) that refuse a value out of range, non-finite or not plainly
+  written (``1_5``, ``0x10``) at parse time, naming the option; the trainer's numbers
+  that Lightning takes unchecked are checked by :func:`check_trainer_numbers`.
+- :func:`user_error`: the one line an exception gives, or ``None`` for a bug.
 
 Class names are resolved only among modules already imported (the config's classes,
 imported when the config was parsed): see :func:`hnn_pl.safe_io.loaded_class`.
@@ -22,8 +27,10 @@ import argparse
 import difflib
 import inspect
 import math
+import pickle
 import re
 import sys
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,12 +49,117 @@ class CLIError(ValueError):
     """Bad command-line input: printed as one line, exit status 2."""
 
 
+#: what bad input raises (pickle's: a checkpoint that is more than weights); anything
+#: else is a bug and keeps its traceback
+USER_ERRORS = (ValueError, OSError, FloatingPointError, pickle.UnpicklingError)
+
+
+def user_error(err: BaseException) -> str | None:
+    """The message of the innermost bad-input exception behind ``err`` (jsonargparse
+    wraps the one an ``__init__`` raised), or ``None`` if there is none."""
+    found, seen = None, set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, USER_ERRORS):
+            found = err
+        err = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
+    if found is None:
+        return None
+    return (str(found).strip().splitlines() or [type(found).__name__])[0]
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse for the plain commands (``reproduce``, ``bump``, ``stress``): a bad
-    option is a :class:`CLIError`, printed by ``__main__`` as one line, no usage dump."""
+    option is a :class:`CLIError`, printed by ``__main__`` as one line, no usage dump;
+    argparse's ``argument --x: must be …`` reads ``--x must be …``."""
 
     def error(self, message: str):
-        raise CLIError(message)
+        message = re.sub(r"^argument (\S+): (must )", r"\1 \2", message)
+        raise CLIError(re.sub(r"^argument (\S+): ", r"\1: ", message))
+
+
+# ------------------------------------------------------------------ option values
+
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+
+
+def integer_at_least(least: int) -> Callable[[str], int]:
+    """An argparse ``type``: a plain decimal integer ``>= least`` (``1_5``, ``0x10``,
+    ``2.0`` refused), else ``--option must be an integer >= least, got '…'``."""
+
+    def read(text: str) -> int:
+        if not _INTEGER.fullmatch(text) or int(text) < least:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {least}, got {text!r}")
+        return int(text)
+
+    read.__name__ = f"integer_at_least_{least}"
+    return read
+
+
+#: counts: ``--starts``, ``--seeds``, ``--max-steps``
+positive_int = integer_at_least(1)
+#: ``--first-seed``; ``--workers`` (0: in this process)
+non_negative_int = integer_at_least(0)
+
+
+def finite_float(text: str) -> float:
+    """An argparse ``type``: a plain decimal number that is finite as a float (``nan``,
+    ``inf``, ``1e999``, ``1_5`` refused)."""
+    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """An argparse ``type``: a finite number ``> 0`` (a horizon, a step)."""
+    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def output_directory(text: str) -> Path:
+    """An argparse ``type``: a directory to write into, absent (made when written) or a
+    directory; a path naming a file, or below one, is refused."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a file; name a directory to write into")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise argparse.ArgumentTypeError(f"{text}: {parent} is not a directory")
+            break
+    return path
+
+
+#: trainer options Lightning takes without a check (a 0 divides by zero at the first
+#: step, a negative count is silently read as another): name -> least value
+TRAINER_COUNTS = {
+    "check_val_every_n_epoch": 1,
+    "accumulate_grad_batches": 1,
+    "log_every_n_steps": 0,
+    "num_sanity_val_steps": -1,
+    "min_steps": 0,
+    "min_epochs": 0,
+}
+
+
+def check_trainer_numbers(trainer: Mapping[str, Any]) -> None:
+    """Refuse, naming the option, a trainer count below :data:`TRAINER_COUNTS`, a
+    ``val_check_interval`` that is not a finite number > 0 and a ``gradient_clip_val``
+    that is not finite and >= 0 (``None``: Lightning's default)."""
+    for name, least in TRAINER_COUNTS.items():
+        value = trainer.get(name)
+        if value is not None and value < least:
+            raise CLIError(f"trainer.{name} must be an integer >= {least}, got {value}")
+    interval = trainer.get("val_check_interval")
+    if interval is not None and not (math.isfinite(interval) and interval > 0):
+        raise CLIError(f"trainer.val_check_interval must be a number > 0, got {interval}")
+    clip = trainer.get("gradient_clip_val")
+    if clip is not None and not (math.isfinite(clip) and clip >= 0):
+        raise CLIError(f"trainer.gradient_clip_val must be a finite number >= 0, got {clip}")
 
 
 def did_you_mean(word: str, candidates: list[str] | set[str], prefix: str = "") -> str:
@@ -282,13 +394,12 @@ def check_starts(path: str, width: int) -> None:
 
 
 def check_threads(requested: Any) -> int | None:
-    """``--threads``: ``None`` for ``"auto"``/unset, else an int >= 1 (CLIError)."""
+    """``--threads``: ``None`` for ``"auto"``/unset, else an integer >= 1 (a plain one:
+    ``1.5``, ``1_5``, ``nan`` refused), else :class:`CLIError` naming the option."""
     if requested in (None, "auto"):
         return None
-    try:
-        n = int(requested)
-    except (TypeError, ValueError):
-        n = math.nan
-    if not (isinstance(n, int) and n >= 1):
-        raise CLIError(f"threads must be >= 1 or 'auto', got {requested!r}")
-    return n
+    text = str(requested)
+    valid = not isinstance(requested, bool) and _INTEGER.fullmatch(text) and int(text) >= 1
+    if not valid:
+        raise CLIError(f"--threads must be >= 1 or 'auto', got {requested!r}")
+    return int(text)

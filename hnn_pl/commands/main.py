@@ -9,10 +9,11 @@ traceback.
 from __future__ import annotations
 
 import os
-import pickle
 import sys
 
-from hnn_pl.commands.cli_errors import program_name
+from hnn_pl.commands.cli_errors import USER_ERRORS, program_name, user_error
+
+__all__ = ["USER_ERRORS", "main", "user_error"]
 
 USAGE = """usage: {prog} <command> [options]
 
@@ -76,22 +77,3 @@ def main(argv: list[str] | None = None) -> None:
             raise
         print(f"{program_name()}: error: {message}", file=sys.stderr)
         sys.exit(2)
-
-
-#: what bad input raises (pickle's: a checkpoint that is more than weights); anything
-#: else is a bug and keeps its traceback
-USER_ERRORS = (ValueError, OSError, FloatingPointError, pickle.UnpicklingError)
-
-
-def user_error(err: BaseException) -> str | None:
-    """The message of the innermost bad-input exception behind ``err`` (jsonargparse
-    wraps the one an ``__init__`` raised), or ``None`` if there is none."""
-    found, seen = None, set()
-    while err is not None and id(err) not in seen:
-        seen.add(id(err))
-        if isinstance(err, USER_ERRORS):
-            found = err
-        err = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
-    if found is None:
-        return None
-    return (str(found).strip().splitlines() or [type(found).__name__])[0]

@@ -234,30 +234,74 @@ def run_jobs(
     """Run every job with :func:`run_one` (``kwargs``: its options, ``build`` among
     them; in this process for ``workers=0``), ``done(record)`` as each finishes. Workers
     ignore Ctrl-C and die with this process (:func:`_die_with_parent`); on Ctrl-C or a
-    dead worker the others are killed before the error goes on."""
+    dead worker the others are killed and the pool shut down before the error goes on
+    (:func:`_stop`); a Ctrl-C while the pool starts is raised once it has started
+    (:func:`_ctrl_c_held`)."""
     if workers == 0:
         for k, job in enumerate(jobs, 1):
             done(_started(job, k, len(jobs), **kwargs, model_path=paths.get(job)))
         return
-    pool = ProcessPoolExecutor(
-        workers,
-        mp_context=get_context("spawn"),
-        initializer=_die_with_parent,
-        initargs=(os.getpid(),),
-    )
+    pool = None
     try:
-        futures = [
-            pool.submit(_started, job, k, len(jobs), **kwargs, model_path=paths.get(job))
-            for k, job in enumerate(jobs, 1)
-        ]
+        with _ctrl_c_held():
+            pool = ProcessPoolExecutor(
+                workers,
+                mp_context=get_context("spawn"),
+                initializer=_die_with_parent,
+                initargs=(os.getpid(),),
+            )
+            futures = [
+                pool.submit(_started, job, k, len(jobs), **kwargs, model_path=paths.get(job))
+                for k, job in enumerate(jobs, 1)
+            ]
         for future in as_completed(futures):
             done(future.result())
     except BaseException:
-        for process in list(getattr(pool, "_processes", {}).values()):
-            process.kill()
-        pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:
+            _stop(pool)
         raise
     pool.shutdown()
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Kill ``pool``'s workers and wait for its manager thread to wind down: not waiting
+    leaves that thread closing its wake-up pipe while the interpreter's exit hook writes
+    to it (``OSError: [Errno 9] Bad file descriptor`` at exit, under load); with the
+    workers dead it ends at once."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.kill()
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextmanager
+def _ctrl_c_held() -> Iterator[None]:
+    """Ctrl-C (SIGINT) while the worker pool starts, raised as ``KeyboardInterrupt``
+    once it has started: an interrupt inside multiprocessing's launch of a worker leaves
+    a worker the pool does not know, or its pipes half made. SIGINT is recorded and
+    blocked meanwhile; a worker spawned now starts with it blocked until
+    :func:`_die_with_parent` ignores and unblocks it (the resource tracker is started
+    first: its start unblocks SIGINT in this thread). Main thread only."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def _die_with_parent(parent: int) -> None:
@@ -269,6 +313,8 @@ def _die_with_parent(parent: int) -> None:
     import threading
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # see _ctrl_c_held
     if sys.platform.startswith("linux"):
         import ctypes
 
