@@ -15,15 +15,14 @@ from hnn_pl.plotting import pyplot
 def main(argv: list[str] | None = None) -> int:
     """``hnn-pl bump --config X --ckpt_path C [--delta D] …``: bump the held-out
     starts of a trained HNN and write ``bump.pt`` and ``bump.png`` into its run."""
+    from hnn_pl.argtypes import integer_at_least, positive_int
     from hnn_pl.commands.cli import _run_directory, cli_main, resolve_checkpoint
     from hnn_pl.commands.cli_errors import (
         CLIError,
         OneLineParser,
         finite_float,
-        integer_at_least,
         output_directory,
         positive_float,
-        positive_int,
         program_name,
     )
     from hnn_pl.commands.config_paths import resolve_config

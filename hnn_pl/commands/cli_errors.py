@@ -30,9 +30,11 @@ import math
 import pickle
 import re
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
+
+from hnn_pl.argtypes import _INTEGER
 
 
 def program_name() -> str:
@@ -80,27 +82,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 # ------------------------------------------------------------------ option values
 
-_INTEGER = re.compile(r"[+-]?[0-9]+")
 _DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
-
-
-def integer_at_least(least: int) -> Callable[[str], int]:
-    """An argparse ``type``: a plain decimal integer ``>= least`` (``1_5``, ``0x10``,
-    ``2.0`` refused), else ``--option must be an integer >= least, got '…'``."""
-
-    def read(text: str) -> int:
-        if not _INTEGER.fullmatch(text) or int(text) < least:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {least}, got {text!r}")
-        return int(text)
-
-    read.__name__ = f"integer_at_least_{least}"
-    return read
-
-
-#: counts: ``--starts``, ``--seeds``, ``--max-steps``
-positive_int = integer_at_least(1)
-#: ``--first-seed``; ``--workers`` (0: in this process)
-non_negative_int = integer_at_least(0)
 
 
 def finite_float(text: str) -> float:

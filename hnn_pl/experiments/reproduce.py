@@ -25,6 +25,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
+from hnn_pl.argtypes import non_negative_int, positive_int
 from hnn_pl.experiments import collect, paper
 from hnn_pl.experiments.collect import Build, Job
 from hnn_pl.experiments.results import write_markdown
@@ -91,12 +92,19 @@ def add_arguments(parser: ArgumentParser) -> None:
         "positions: from positions alone (TASK_positions*.yaml) beside the states-only and "
         "finite-difference fits, scored through the observer (RESULTS_positions.md)",
     )
-    parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, …)")
+    parser.add_argument("--seeds", type=positive_int, default=3, help="number of seeds (0, 1, …)")
     parser.add_argument(
-        "--first-seed", type=int, default=0, help="start at this seed (extend a --merge run)"
+        "--first-seed",
+        type=non_negative_int,
+        default=0,
+        help="start at this seed (extend a --merge run)",
     )
-    parser.add_argument("--workers", type=int, default=2, help="processes; 0 runs in this process")
-    parser.add_argument("--max-steps", type=int, default=None, help="override every config's steps")
+    parser.add_argument(
+        "--workers", type=non_negative_int, default=2, help="processes; 0 runs in this process"
+    )
+    parser.add_argument(
+        "--max-steps", type=positive_int, default=None, help="override every config's steps"
+    )
     parser.add_argument(
         "--out",
         default=None,
@@ -129,9 +137,6 @@ def parse(parser: ArgumentParser, argv: list[str] | None = None) -> Call:
     goes to ``parser.error`` before anything is made."""
     add_arguments(parser)
     args = parser.parse_args(argv)
-    bad_steps = args.max_steps is not None and args.max_steps < 1
-    if args.seeds < 1 or args.first_seed < 0 or args.workers < 0 or bad_steps:
-        parser.error("--seeds and --max-steps must be >= 1, --first-seed and --workers >= 0")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     if args.recipe == "positions":
         return _call(parser, argv, args, [], Path(args.out or "RESULTS_positions.md"), seeds)
