@@ -560,6 +560,38 @@ FAULTS = [
         "[derivative-traj-method], [derivative-state-weight], [derivative-keep-fraction], "
         "[state-weight-inf]",
     ),
+    (
+        "a command's number out of range: `bump --starts 0`, `-1`, `1_5`, `--n_points 0`, "
+        "`--t_end -1` or `inf`, `--delta nan`; `reproduce --seeds 0`, `--workers -1`; "
+        "`--threads 0`; a seed beyond numpy's range",
+        "one line naming the option and the value it needs, at parse time",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[bump-starts-zero], [bump-starts-negative], [bump-starts-underscore], "
+        "[bump-n-points-zero], [bump-n-points-one], [bump-t-end-negative], [bump-t-end-zero], "
+        "[bump-t-end-inf], [bump-delta-nan], [bump-delta-inf], [bump-delta-overflow], "
+        "[bump-starts-beyond-the-data], [reproduce-seeds-zero], [reproduce-seeds-fraction], "
+        "[reproduce-first-seed-negative], [reproduce-workers-negative], "
+        "[reproduce-max-steps-zero], [threads-zero], [threads-fraction], [seed-beyond-numpy]",
+    ),
+    (
+        "`bump --out` naming a file; trainer settings Lightning does not check "
+        "(`check_val_every_n_epoch: 0`, `val_check_interval: 0`, `accumulate_grad_batches: "
+        "0`, `num_sanity_val_steps: -2`)",
+        "one line naming the option, before anything runs",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[bump-out-is-a-file], [bump-out-below-a-file], [trainer-check-val-zero], "
+        "[trainer-val-check-interval-zero], [trainer-accumulate-zero], "
+        "[trainer-sanity-steps-negative]",
+    ),
+    (
+        "a refusal after the run started: a window longer than every trajectory, an objective"
+        " that does not fit the data, a test refused at its first batch",
+        "one line, the only line on stderr, and the run's own files (config, hparams, events)"
+        " taken back: nothing new on disk",
+        "test_every_cli_failure_is_one_line_and_leaves_nothing"
+        "[window-longer-than-every-trajectory], [objective-data-mismatch], "
+        "[test-refused-at-its-first-batch]",
+    ),
 ]
 
 
