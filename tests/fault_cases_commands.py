@@ -159,7 +159,7 @@ CASES = {
     "objective-data-mismatch": (
         [*FIT, "--model.init_args.objective=trajectory", SHARED_CACHE],
         "",
-        "got a batch of derivative pairs (y, dydt)",
+        "model.init_args.objective: trajectory needs windows of observed samples",
     ),
     "test-refused-at-its-first-batch": (
         [
@@ -172,6 +172,6 @@ CASES = {
             SHARED_CACHE,
         ],
         "finished-run",
-        "got a batch of windows (y, t, index)",
+        "serves windows, which only the trajectory objective uses",
     ),
 }
