@@ -267,8 +267,7 @@ class DynamicsModel(RecipeModel):
         activation: hidden nonlinearity (``"tanh"``).
         objective: ``"derivative"``, ``"trajectory"`` or ``"auto"``: the trajectory
             objective for data that serve windows (``window`` set), else the
-            derivative one, fixed when the model first sees its data
-            (:meth:`resolve_objective`).
+            derivative one, fixed when the model first sees its data.
         traj_method: fixed-step method of the trajectory objective: ``"rk4"``,
             ``"leapfrog"``, ``"implicit_midpoint"`` (or ``"euler"``).
         substeps: integration steps between consecutive samples.
