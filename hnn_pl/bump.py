@@ -81,3 +81,21 @@ def _flow(field64: nn.Module, z0: Tensor, delta: float, rtol: float, atol: float
             f"changes by {delta:g} (first at ΔH_θ = {first:.3g}); use a smaller |delta|"
         )
     return sol.y[-1]
+
+
+def default_delta(h0: Tensor, share: float = 0.2) -> float:
+    """The bump asked for when none is given: ``share · (max H − min H + mean |H|)`` of
+    ``H_θ`` at the starts, ``h0 (B,)`` (a share of their spread, and of their size when
+    they share one energy)."""
+    return share * float(h0.max() - h0.min() + h0.abs().mean())
+
+
+def bump_and_roll_out(
+    model: Any, starts: Tensor, delta: float | None, t: Tensor, share: float = 0.2
+) -> tuple[float, Rollout, Rollout]:
+    """``starts`` rolled out over ``t (T,)`` as they are and bumped by ``delta``
+    (``None``: :func:`default_delta` with ``share``): ``(delta, before, after)``."""
+    _, before = energy_bump(model, starts, 0.0, t)
+    delta = default_delta(before.h_pred[0], share) if delta is None else delta
+    _, after = energy_bump(model, starts, delta, t)
+    return delta, before, after

@@ -1,17 +1,29 @@
-"""Callbacks: thin schedulers around the evaluation (:mod:`hnn_pl.evaluation`)."""
+"""Callbacks: thin schedulers around the evaluation (:mod:`hnn_pl.evaluation`), and a
+progress bar that counts optimiser steps."""
 
 from __future__ import annotations
 
+import sys
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
-from lightning.pytorch.callbacks import BasePredictionWriter, ModelCheckpoint
+from lightning.pytorch.callbacks import BasePredictionWriter, ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from hnn_pl.evaluation import Rollout, evaluate, rollout, task_protocol, view_of
+from hnn_pl.evaluation import (
+    Rollout,
+    data_protocol,
+    evaluate,
+    rollout,
+    task_protocol,
+    view_of,
+)
+from hnn_pl.loggers import run_directory
 from hnn_pl.safe_io import save_atomic
 
 
@@ -40,7 +52,76 @@ class FinalCheckpoint(ModelCheckpoint):
         self._save_last_checkpoint(trainer, candidates)
 
 
-class RolloutCallback(Callback):
+class StepProgressBar(TQDMProgressBar):
+    """Lightning's progress bar, counting optimiser steps over the whole fit
+    (``trainer.global_step`` of ``max_steps``) instead of each epoch's batches: a model
+    taking ``inner_steps`` steps per batch (:class:`~hnn_pl.models.recipe.RecipeModel`)
+    shows ``300/300 step`` at the end of a 300-step fit, not 15 ticks per epoch. The bar
+    is closed when training ends, before the callbacks' final work (a final rollout is
+    then its own step, :func:`shown_as_step`), if it comes first in the callbacks.
+    Arguments: Lightning's."""
+
+    def init_train_tqdm(self):
+        bar = super().init_train_tqdm()
+        bar.unit = "step"
+        return bar
+
+    def on_train_epoch_start(self, trainer: Trainer, *_: Any) -> None:
+        bar = self.train_progress_bar
+        bar.total = trainer.max_steps if trainer.max_steps > 0 else None
+        bar.n = trainer.global_step  # a resumed fit starts where it stopped
+        bar.set_description(f"Epoch {trainer.current_epoch}")
+
+    def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *_: Any) -> None:
+        bar = self.train_progress_bar
+        if bar is not None and not bar.disable and trainer.global_step != bar.n:
+            bar.n = trainer.global_step
+            bar.set_postfix(self.get_metrics(trainer, pl_module))  # refreshes
+
+
+@contextmanager
+def shown_as_step(trainer: Trainer, description: str) -> Iterator[None]:
+    """A piece of work shown as a one-step bar of its own (``description: 1/1 [time]``)
+    when ``trainer`` shows a progress bar, else nothing."""
+    bar = trainer.progress_bar_callback
+    if not isinstance(bar, TQDMProgressBar) or not bar.is_enabled:
+        yield
+        return
+    from tqdm import tqdm
+
+    fmt = "{desc}: {bar}| {n_fmt}/{total_fmt} [{elapsed}]"
+    with tqdm(total=1, desc=description, file=sys.stdout, bar_format=fmt, ncols=80) as step:
+        yield
+        step.update(1)
+
+
+def show_line(trainer: Trainer, line: str) -> None:
+    """Print ``line`` on a line of its own, above any progress bar (not glued to it)."""
+    bar = trainer.progress_bar_callback
+    if isinstance(bar, TQDMProgressBar) and bar.is_enabled:
+        from tqdm import tqdm
+
+        tqdm.write(line, file=sys.stdout)
+    else:
+        print(line, flush=True)
+
+
+class _DataProtocol:
+    """A callback's rollout protocol: the named task's, built (and checked) at
+    construction, else the data's (:func:`~hnn_pl.evaluation.protocols.data_protocol`)
+    at ``setup``; ``protocol`` is ``None`` until then."""
+
+    def _set_protocol(self, task: str | None, name: str, overrides: Any) -> None:
+        self._protocol_args = (name, overrides)
+        self.protocol = None if task is None else task_protocol(task, name, overrides)
+
+    def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
+        super().setup(trainer, pl_module, stage)
+        if self.protocol is None:
+            self.protocol = data_protocol(trainer.datamodule, *self._protocol_args)
+
+
+class RolloutCallback(_DataProtocol, Callback):
     """Roll the model out from the held-out starts under a task's protocol and log it.
 
     Every ``every_n_epochs`` epochs and at the end of ``fit`` (only with a logger:
@@ -56,17 +137,21 @@ class RolloutCallback(Callback):
     ``rollout/energy``, pixel ``rollout/frames``.
 
     Args:
-        task: a name in :data:`hnn_pl.tasks.TASKS`.
+        task: a name in :data:`hnn_pl.tasks.TASKS`; ``None``: the task of the data
+            (:func:`hnn_pl.evaluation.protocols.data_protocol`; a recording's held-out
+            trajectories as recorded).
         protocol: ``"clean"``, ``"reference"`` (the state tasks': scipy's procedure)
             or ``"independent"``.
         every_n_epochs: period during training; ``0``: only at the end of fit.
         log_images: draw the figures.
         overrides: protocol fields to change, e.g. ``{method: rk4, step_size: 0.05}``.
+
+    ``metrics`` holds the last rollout's metrics (``{}`` before the first).
     """
 
     def __init__(
         self,
-        task: str = "spring",
+        task: str | None = None,
         protocol: str = "clean",
         every_n_epochs: int = 100,
         log_images: bool = True,
@@ -75,14 +160,17 @@ class RolloutCallback(Callback):
         super().__init__()
         if every_n_epochs < 0:
             raise ValueError(f"every_n_epochs must be >= 0, got {every_n_epochs}")
-        self.protocol = task_protocol(task, protocol, overrides)
+        self._set_protocol(task, protocol, overrides)
         self.every_n_epochs = every_n_epochs
         self.log_images = log_images
         self._last_logged_step = -1
+        self.metrics: dict[str, float] = {}
 
     def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
-        """Record what tells runs apart in every logger's hyperparameters: the model's
+        """Take the protocol from the data's task if none was named (``task=None``), and
+        record what tells runs apart in every logger's hyperparameters: the model's
         class, the system with its parameters, the rollout protocol."""
+        super().setup(trainer, pl_module, stage)
         cls = type(pl_module)
         dm_hparams = getattr(trainer.datamodule, "hparams", {})
         run = {
@@ -104,29 +192,35 @@ class RolloutCallback(Callback):
         if r.has_frames:
             writer.add_figure("rollout/frames", plotting.frames_figure(r), step)
 
-    def _log_during_fit(self, trainer: Trainer, pl_module: LightningModule) -> None:
+    def _log_during_fit(
+        self, trainer: Trainer, pl_module: LightningModule, final: bool = False
+    ) -> None:
         if not (trainer.is_global_zero and trainer.loggers):
             return
         if trainer.global_step == self._last_logged_step:
             return
         self._last_logged_step = trainer.global_step
-        metrics, r = evaluate(pl_module, trainer.datamodule, self.protocol)
-        tagged = {f"rollout/{k}": v for k, v in metrics.items()}
-        for logger in trainer.loggers:
-            logger.log_metrics(tagged, step=trainer.global_step)
-        self._images(trainer, r)
+        with shown_as_step(trainer, "Final rollout") if final else nullcontext():
+            metrics, r = evaluate(pl_module, trainer.datamodule, self.protocol)
+            self.metrics = metrics
+            tagged = {f"rollout/{k}": v for k, v in metrics.items()}
+            for logger in trainer.loggers:
+                logger.log_metrics(tagged, step=trainer.global_step)
+            self._images(trainer, r)
 
     def on_train_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if self.every_n_epochs and (trainer.current_epoch + 1) % self.every_n_epochs == 0:
             self._log_during_fit(trainer, pl_module)
 
     def on_train_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
-        self._log_during_fit(trainer, pl_module)
+        self._log_during_fit(trainer, pl_module, final=True)
 
     def on_test_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if not trainer.is_global_zero:
             return
-        metrics, r = evaluate(pl_module, trainer.datamodule, self.protocol)
+        with shown_as_step(trainer, "Rollout"):
+            metrics, r = evaluate(pl_module, trainer.datamodule, self.protocol)
+        self.metrics = metrics
         for k, v in metrics.items():
             pl_module.log(f"rollout/{k}", v, rank_zero_only=True)
         self._images(trainer, r)
@@ -148,7 +242,7 @@ class PixelRolloutCallback(RolloutCallback):
         super().__init__(task, protocol, every_n_epochs, log_images, overrides)
 
 
-class RolloutWriter(BasePredictionWriter):
+class RolloutWriter(_DataProtocol, BasePredictionWriter):
     """``predict`` that answers: rollouts written to a file beside the run.
 
     At the end of ``predict`` (rank zero) the model is rolled out under the task's
@@ -175,7 +269,7 @@ class RolloutWriter(BasePredictionWriter):
 
     def __init__(
         self,
-        task: str = "spring",
+        task: str | None = None,
         protocol: str = "clean",
         overrides: dict[str, Any] | None = None,
         starts: str | None = None,
@@ -183,15 +277,15 @@ class RolloutWriter(BasePredictionWriter):
     ) -> None:
         super().__init__(write_interval="epoch")
         warnings.filterwarnings("ignore", message=".*infer the batch indices.*")
-        self.protocol = task_protocol(task, protocol, overrides)
+        self._set_protocol(task, protocol, overrides)
         self.starts = starts
         self.filename = filename
         self.path: Path | None = None
+        self.metrics: dict[str, float] = {}
 
     def _directory(self, trainer: Trainer) -> Path:
         if trainer.ckpt_path:
-            ckpt_dir = Path(trainer.ckpt_path).parent
-            return ckpt_dir.parent if ckpt_dir.name == "checkpoints" else ckpt_dir
+            return run_directory(trainer.ckpt_path) or Path(trainer.ckpt_path).parent
         if trainer.logger is not None and trainer.log_dir is not None:
             return Path(trainer.log_dir)
         return Path.cwd()
@@ -216,7 +310,9 @@ class RolloutWriter(BasePredictionWriter):
         if self.starts is not None:
             payload = self._given_starts(pl_module, dm)
         else:
-            metrics, r = evaluate(pl_module, dm, self.protocol)
+            with shown_as_step(trainer, "Rollout"):
+                metrics, r = evaluate(pl_module, dm, self.protocol)
+            self.metrics = metrics
             payload = {
                 "t": r.t,
                 "y_true": r.y_true,
@@ -242,4 +338,4 @@ class RolloutWriter(BasePredictionWriter):
         status = payload.get("status")
         stopped = int((status != 0).sum()) if status is not None else 0
         note = f"; {stopped} of {len(status)} rows stopped early (see 'status')" if stopped else ""
-        print(f"wrote rollouts {shape} (T, B, D) to {self.path}{note}", flush=True)
+        show_line(trainer, f"wrote rollouts {shape} (T, B, D) to {self.path}{note}")

@@ -133,3 +133,38 @@ def frames_image(r: Rollout, trajectory: int = 0, n_strip: int = 10) -> Tensor:
     top, bottom = frame_strip(true, vmax=vmax), frame_strip(pred, vmax=vmax)
     gap = torch.full((2, top.shape[1]), 128, dtype=torch.uint8)
     return torch.cat([top, gap, bottom])[None]
+
+
+def bump_figure(before: Rollout, after: Rollout, delta: float, path) -> None:
+    """``path`` (a PNG): the rollouts ``before`` and ``after`` an energy bump by ``delta``
+    (:func:`hnn_pl.bump.energy_bump`): decoded frames for a pixel model, else the phase
+    portrait and ``H_θ`` over time."""
+    plt = pyplot()
+    if before.x_pred is not None:
+        n = min(8, before.x_pred.shape[0])
+        idx = torch.linspace(0, before.x_pred.shape[0] - 1, n).long()
+        side = int(round((before.x_pred.shape[-1] // 2) ** 0.5))
+        fig, axes = plt.subplots(2, n, figsize=(1.4 * n, 3.2))
+        for row, (traj, label) in enumerate(((before, "original"), (after, f"ΔH_θ = {delta:.3g}"))):
+            for col, k in enumerate(idx.tolist()):
+                frame = traj.x_pred[k, 0, : side * side].reshape(side, side).float()
+                axes[row, col].imshow(frame.detach().numpy(), cmap="gray")
+                axes[row, col].axis("off")
+            axes[row, 0].set_title(label, fontsize=8, loc="left")
+    else:
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.4))
+        for traj, style in ((before, "-"), (after, "--")):
+            k = traj.y_pred.shape[-1] // 2
+            for b in range(traj.y_pred.shape[1]):
+                ax1.plot(traj.y_pred[:, b, 0], traj.y_pred[:, b, k], style, color=f"C{b % 10}")
+                ax2.plot(traj.t, traj.h_pred[:, b], style, color=f"C{b % 10}")
+        ax1.set(xlabel="q", ylabel="p", title="learned dynamics before and after the bump")
+        ax2.set(xlabel="t", ylabel="H_θ", title="H_θ: moved by ΔH, then kept")
+        styles = [
+            plt.Line2D([], [], color="k", ls="-", label="original (one colour per start)"),
+            plt.Line2D([], [], color="k", ls="--", label=f"bumped by ΔH_θ = {delta:.3g}"),
+        ]
+        fig.legend(handles=styles, loc="lower center", ncol=2, frameon=False)
+    fig.tight_layout(rect=(0, 0 if before.x_pred is not None else 0.07, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -12,7 +12,10 @@
   :func:`check_finite_weights` (every :func:`load_checkpoint` runs it),
   :func:`check_same_system`, :func:`check_state_shapes`: weights that are not finite,
   trained on another system, or of another shape, each refused in one line.
-- :func:`require_memory`: refuse work whose estimated memory exceeds the machine's.
+- :func:`checkpoint_init_args`, :func:`refuse_changed_options`: a run from a checkpoint
+  takes the options it was trained with, and refuses one given otherwise.
+- :func:`require_memory`: refuse work whose estimated memory exceeds the machine's;
+  :func:`idle_cores`: the cores not busy with other processes.
 """
 
 from __future__ import annotations
@@ -191,6 +194,74 @@ def check_model_class(ckpt: dict[str, Any], expected: str | type, where: str) ->
             )
 
 
+def _plain(value: Any) -> bool:
+    if isinstance(value, (list, tuple)):
+        return all(_plain(v) for v in value)
+    return value is None or isinstance(value, (bool, int, float, str))
+
+
+#: model options a checkpoint never restores: linked from the data, or about the run
+#: itself (``reinit_states``: what a resumed fit does with learned states)
+NOT_RESTORED = ("input_dim", "reinit_states")
+#: model options whose checkpoint value must be the config's: restoring it silently
+#: would make the model refuse the config's data
+MUST_MATCH = ("objective",)
+
+
+def checkpoint_init_args(
+    ckpt: dict[str, Any], init_args: Any, given: set[str] | frozenset[str] = frozenset()
+) -> dict[str, Any]:
+    """The checkpoint's hyperparameters that restore the config's ``init_args``: keys the
+    config already has with a plain value, given plain values (never a class path),
+    except :data:`NOT_RESTORED` and the options ``given`` on the command line (which
+    :func:`refuse_changed_options` has compared)."""
+    hparams = ckpt.get("hyper_parameters") or {}
+    current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
+    return {
+        k: v
+        for k, v in hparams.items()
+        if k in current
+        and k not in NOT_RESTORED
+        and k not in given
+        and _plain(v)
+        and _plain(current[k])
+    }
+
+
+def refuse_changed_options(
+    ckpt: dict[str, Any], init_args: Any, given: set[str], where: str
+) -> None:
+    """A run from a checkpoint keeps the options it was trained with: a model option
+    ``given`` on the command line with another value than the checkpoint's, or one of
+    :data:`MUST_MATCH` that the config sets otherwise, is a one-line ``ValueError``
+    naming both values (never silently replaced; :data:`NOT_RESTORED` excepted)."""
+    hparams = ckpt.get("hyper_parameters") or {}
+    current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
+    for k in [*sorted(given), *MUST_MATCH]:
+        if k in NOT_RESTORED or k not in hparams or k not in current:
+            continue
+        saved, value = hparams[k], current[k]
+        if not (_plain(saved) and _plain(value)) or _same(saved, value) or saved == "auto":
+            continue  # "auto": a model saved before it saw data, which sets it
+        if k in given:
+            raise ValueError(
+                f"--model.init_args.{k}={value}: {where} was trained with {k}={saved!r}, and "
+                "a run from a checkpoint keeps the options it was trained with: remove the "
+                "option, or fit anew without --ckpt_path"
+            )
+        raise ValueError(
+            f"{where} was trained with {k}={saved!r} but the config sets {k}: {value!r}: use "
+            "the config the checkpoint was trained with"
+        )
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal plain values, a list equal to a tuple of the same items."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return list(a) == list(b)
+    return a == b
+
+
 def no_space(path: str | os.PathLike) -> OSError:
     """The one-line error (errno ``ENOSPC``) of a full file system while writing ``path``."""
     err = OSError(f"no space left on {Path(path).parent}")
@@ -256,6 +327,19 @@ def machine_memory() -> int:
         if text.isdigit():
             total = min(total, int(text))
     return total
+
+
+def idle_cores() -> int:
+    """The cores of this process not busy with other processes: ``max(1, cores −
+    round(load average over 1 min))``. On 2 shared cores a second busy process makes 2
+    OpenMP threads wait for each other at every operation; 1 thread then runs as fast
+    as on an idle machine (BENCHMARKS.md, threads under load)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    try:
+        busy = round(os.getloadavg()[0])
+    except OSError:
+        busy = 0
+    return max(1, min(cores or 1, (cores or 1) - busy))
 
 
 def require_memory(nbytes: float, what: str) -> None:

@@ -57,6 +57,10 @@ class Task:
     independent: Spec | None = None
 
 
+#: the clean protocol of recorded data: the held-out trajectories as recorded (there is
+#: no truth off the samples), one group
+RECORDED = rollout(t_end=None, n_points=None, n_groups=1)
+
 TASKS: dict[str, Task] = {
     t.name: t
     for t in (
@@ -81,7 +85,7 @@ TASKS: dict[str, Task] = {
             "real pendulum (measured)",
             "state",
             reference(starts="test", n_starts=1, rtol=1e-3, n_groups=1),
-            rollout(t_end=None, n_points=None, n_groups=1),
+            RECORDED,
         ),
         Task(
             "two_body",
@@ -114,6 +118,17 @@ TASKS: dict[str, Task] = {
             rollout(t_end=None, n_points=200),
         ),
     )
+}
+
+
+#: the task of the bundled data, by the class name of its DataModule or of its system
+DATA_TASKS = {
+    "RealPendulumData": "real_pendulum",
+    "PixelPendulumData": "pixel",
+    "MassSpring": "spring",
+    "Pendulum": "pendulum",
+    "TwoBody": "two_body",
+    "ThreeBody": "three_body",
 }
 
 

@@ -169,6 +169,7 @@ CASES = {
             "--ckpt_path",
             "lightning_logs/spring_fast_hnn",
             "--data.init_args.window=5",
+            "--model.init_args.objective=derivative",
             SHARED_CACHE,
         ],
         "finished-run",

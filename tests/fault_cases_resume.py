@@ -196,7 +196,8 @@ CASES = {
     "derivative-continuity-weight": (
         [*FAST, "--model.init_args.continuity_weight=10"],
         "",
-        f"model.init_args continuity_weight=10.0: {DERIVATIVE}",
+        "model.init_args continuity_weight=10.0: they act on learned states, and "
+        "learned_states is 'none'",
     ),
     "derivative-substeps": (
         [*FAST, "--model.init_args.substeps=4"],
@@ -211,7 +212,8 @@ CASES = {
     "derivative-state-weight": (
         [*FAST, "--model.init_args.state_weight=3"],
         "",
-        f"model.init_args state_weight=3.0: {DERIVATIVE}",
+        "model.init_args state_weight=3.0: they act on learned states, and learned_states is "
+        "'none'",
     ),
     "derivative-keep-fraction": (
         [*FAST, "--data.init_args.keep_fraction=0.5"],

@@ -353,3 +353,65 @@ def test_top_level_help_says_what_predict_writes(capsys, monkeypatch):
     main(["--help"])
     predict = capsys.readouterr().out.split("\n  predict ")[1].split("\n  reproduce")[0]
     assert "rollouts.pt" in predict and "dy/dt" not in predict
+
+
+def _lines(text: str) -> list[str]:
+    """Terminal output as its lines: a progress bar's redraws (``\\r``) split too."""
+    return [line.rstrip() for line in re.split(r"[\r\n]", text) if line.strip()]
+
+
+def _summary(text: str) -> dict[str, str]:
+    """The ``name  value`` rows of a command's closing summary (its last lines)."""
+    lines = _lines(text)
+    start = max(i for i, line in enumerate(lines) if line.startswith("run "))
+    return dict(line.strip().split(None, 1) for line in lines[start:] if not line.endswith(":"))
+
+
+def test_fit_test_and_predict_end_with_their_run_checkpoint_and_metrics(
+    tmp_path, capsys, short_rollouts
+):
+    """The last lines say where a command went and how: the run, the checkpoint and the
+    rollout's metrics as a table. The bar counts optimiser steps (2 batches × 2 inner
+    steps: 4/4), the final rollout is a step of its own, and predict's line stands
+    alone, not glued to a bar."""
+    cli = _fit("spring_fast.yaml", tmp_path, extra=["--trainer.enable_progress_bar=true"])
+    out = capsys.readouterr().out
+    run, ckpt = Path(cli.trainer.log_dir), Path(cli.trainer.log_dir, "checkpoints", "last.ckpt")
+    rows = _summary(out)
+    assert rows["run"] == str(run) and rows["checkpoint"] == str(ckpt) and ckpt.is_file()
+    (rollout,) = [c for c in cli.trainer.callbacks if type(c).__name__ == "RolloutCallback"]
+    shown = {k for k in rollout.metrics if not k.startswith("floor_")}  # floors: in the logs
+    assert rows["metric"] == "value" and set(rows) == {"run", "checkpoint", "metric", *shown}
+    assert float(rows["energy_mse"]) == pytest.approx(rollout.metrics["energy_mse"], rel=1e-3)
+    assert _lines(out)[-len(shown) - 2] == "final rollout:"
+    assert re.search(r"Epoch \d+: 100%\|[^|]*\| 4/4 \[[^]]*step/s", out)
+    assert not re.search(r"Epoch \d+: [^|]*\|[^|]*\| 2/2 \[", out)  # not the batches
+    assert re.search(r"Final rollout: [^|]*\| 1/1 \[", out)
+
+    cli = cli_main(
+        ["test", "--config", "spring_fast.yaml", "--ckpt_path", str(run)] + _common(tmp_path)
+    )
+    rows = _summary(capsys.readouterr().out)
+    assert rows["run"] == str(run) and rows["checkpoint"] == str(ckpt)
+    logged = cli.trainer.callback_metrics
+    assert float(rows["state_mse"]) == pytest.approx(float(logged["rollout/state_mse"]), rel=1e-3)
+    assert float(rows["test/loss"]) == pytest.approx(float(logged["test/loss"]), rel=1e-3)
+
+    argv = ["predict", "--config", "spring_fast.yaml", "--ckpt_path", str(run)]
+    cli_main(argv + _common(tmp_path) + ["--trainer.enable_progress_bar=true"])
+    out = capsys.readouterr().out
+    rows = _summary(out)
+    assert rows["rollouts"] == str(run / "rollouts.pt") and rows["checkpoint"] == str(ckpt)
+    saved = torch.load(run / "rollouts.pt", weights_only=True)["metrics"]
+    assert float(rows["energy_mse"]) == pytest.approx(saved["energy_mse"], rel=1e-3)
+    wrote = [line for line in _lines(out) if "wrote rollouts" in line]
+    assert len(wrote) == 1 and wrote[0].startswith("wrote rollouts (")
+
+
+@pytest.mark.parametrize("command", ["reproduce", "bump"])
+def test_plain_commands_help_imports_neither_torch_nor_lightning(command):
+    """``reproduce --help`` and ``bump --help`` are as quick as ``--help``."""
+    code = "import sys\nfrom hnn_pl.commands.main import main\ntry:\n"
+    code += f"    main([{command!r}, '--help'])\nexcept SystemExit:\n    pass\n"
+    code += "assert not {'torch', 'lightning'} & set(sys.modules), 'heavy imports'"
+    subprocess.run([sys.executable, "-c", code], capture_output=True, check=True)

@@ -324,7 +324,7 @@ def test_every_cli_failure_is_one_line_and_leaves_nothing(case, cli_runs):
 def test_checkpoint_hyperparameters_restore_only_plain_options():
     from types import SimpleNamespace
 
-    from hnn_pl.commands.cli_errors import checkpoint_init_args
+    from hnn_pl.safe_io import checkpoint_init_args
 
     ckpt = {
         "hyper_parameters": {
@@ -638,6 +638,57 @@ def test_ctrl_c_and_a_dead_worker_end_in_one_line(tmp_path):
         "a worker process died (killed, or out of memory): 0 of 2 runs finished, nothing written"
     ), err
     assert not (tmp_path / "results").exists()
+
+
+#: a ``reproduce`` whose runs wait (their build sleeps): the pool's start and stop alone
+_WAITING_RUNS = """
+import sys, time
+from concurrent.futures.process import BrokenProcessPool
+from hnn_pl.experiments import collect
+
+def build(config, options=(), save_config=False):
+    time.sleep(120)
+
+if __name__ == "__main__":
+    print("started", flush=True)
+    try:
+        collect.run_jobs([("spring", "hnn", 0), ("spring", "hnn", 1)], 1, print, {}, build=build)
+    except (KeyboardInterrupt, BrokenProcessPool) as err:
+        print(type(err).__name__, file=sys.stderr)
+        sys.exit(3)
+"""
+
+
+@linux_only
+@pytest.mark.parametrize("delay", [0.0, 0.3, 1.5])
+@pytest.mark.parametrize("stop", ["ctrl-c", "dead worker"])
+def test_the_pool_stops_in_one_line_at_any_moment_of_its_life(tmp_path, delay, stop):
+    """Ctrl-C to the process group, or a worker killed, while the pool starts its worker,
+    while the worker imports, while it runs: ``run_jobs`` kills the pool, waits for its
+    manager thread and raises; nothing else is printed (no ``Bad file descriptor`` from
+    the interpreter's exit hook, no worker traceback) and the process exits."""
+    script = tmp_path / "runs.py"
+    script.write_text(_WAITING_RUNS)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    assert proc.stdout.readline() == "started\n"
+    time.sleep(delay)
+    if stop == "dead worker":
+        assert _wait_for(lambda: _worker(proc.pid) is not None, 60)
+        os.kill(_worker(proc.pid), signal.SIGKILL)
+    else:
+        os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    expected = "KeyboardInterrupt" if stop == "ctrl-c" else "BrokenProcessPool"
+    assert (proc.returncode, err) == (3, expected + "\n"), err
 
 
 @linux_only

@@ -5,6 +5,7 @@ from __future__ import annotations
 import gzip
 import math
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from test_bad_input import FIT, _fails
 from torch import nn
 
 from hnn_pl import evaluation
+from hnn_pl.callbacks import RolloutCallback
 from hnn_pl.commands.cli import cli_main, quiet_args
 from hnn_pl.data import RealPendulumData, RecordingData, load_recording
 from hnn_pl.evaluation import Protocol
@@ -641,3 +643,73 @@ def test_predict_gives_back_the_time_offsets(tmp_path, monkeypatch):
     torch.testing.assert_close(
         dm.test_t + dm.test_t0[0], torch.tensor(t[20:], dtype=torch.float64), rtol=0, atol=1e-6
     )
+
+
+def _recording_config(tmp_path, model: str = "") -> Path:
+    """A config as a user writes it: a windowed recording, a rollout callback with no
+    task, and ``model`` (YAML) or the bundled config's model."""
+    path = _write(tmp_path / "s.csv", _recorded_springs())
+    config = tmp_path / "recording.yaml"
+    config.write_text(
+        "data:\n  class_path: hnn_pl.data.RecordingData\n  init_args:\n"
+        f"    path: {path}\n    test_fraction: 0.34\n    window: 3\n"
+        "    system: {class_path: hnn_pl.systems.MassSpring}\n"
+        "trainer:\n  callbacks:\n    - class_path: hnn_pl.callbacks.RolloutCallback\n"
+        "      init_args: {every_n_epochs: 0}\n" + model
+    )
+    return config
+
+
+def test_a_windowed_recording_trains_the_trajectory_objective_as_written(tmp_path, monkeypatch):
+    """No ``objective`` given: the windows make it the trajectory objective (one switch);
+    the rollout callback, given no task, rolls out the recording's held-out
+    trajectories as recorded (there is no truth off them)."""
+    from hnn_pl.evaluation import data_protocol
+
+    monkeypatch.chdir(tmp_path)
+    args = ["--config=spring_fast.yaml", f"--config={_recording_config(tmp_path)}"]
+    args += [
+        "--trainer.max_steps=2",
+        "--trainer.logger=false",
+        "--trainer.enable_progress_bar=false",
+    ]
+    cli = cli_main([*args, "--trainer.enable_checkpointing=false"], run=False, save_config=False)
+    cli.trainer.fit(cli.model, cli.datamodule)
+    assert cli.model.objective == cli.model.hparams.objective == "trajectory"
+    (callback,) = [c for c in cli.trainer.callbacks if isinstance(c, RolloutCallback)]
+    assert callback.protocol == PROTOCOL == data_protocol(cli.datamodule)
+    (logged,) = cli.trainer.test(cli.model, cli.datamodule, verbose=False)
+    assert math.isfinite(logged["rollout/state_mse"]) and math.isfinite(
+        logged["rollout/energy_mse"]
+    )
+
+
+def test_a_windowed_recording_with_the_derivative_objective_is_refused_before_any_file(
+    tmp_path, monkeypatch, capsys
+):
+    from hnn_pl.commands.main import main
+
+    monkeypatch.chdir(tmp_path)
+    config = _recording_config(tmp_path, "model:\n  init_args: {objective: derivative}\n")
+    with pytest.raises(SystemExit) as info:
+        main(["fit", "--config=spring_fast.yaml", f"--config={config}"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "python -m hnn_pl: error: data.init_args.window: 3 serves windows, which only the "
+        "trajectory objective uses: set model.init_args.objective: trajectory, or window: null"
+    ]
+    assert not (tmp_path / "lightning_logs").exists()
+
+
+def test_the_data_names_its_task_protocol(tmp_path):
+    from hnn_pl.data import SimulatedData
+    from hnn_pl.evaluation import data_protocol, task_protocol
+    from hnn_pl.systems import Pendulum
+
+    recorded = RecordingData(str(_write(tmp_path / "s.csv", _recorded_springs())))
+    assert data_protocol(recorded) == PROTOCOL
+    assert data_protocol(SimulatedData(system=Pendulum())) == task_protocol("pendulum")
+    assert data_protocol(RealPendulumData()) == task_protocol("real_pendulum")
+    with pytest.raises(ValueError, match="holds no task's data: only the clean protocol"):
+        data_protocol(recorded, "reference")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+from types import SimpleNamespace
 
 import lightning as L
 import pytest
@@ -12,16 +13,22 @@ import torch
 from lightning.pytorch import Callback
 
 from hnn_pl.commands.cli import QUIET_TRAINER
-from hnn_pl.commands.cli_errors import (
-    CLIError,
-    checkpoint_init_args,
-    given_model_options,
-    refuse_changed_options,
-)
+from hnn_pl.commands.cli_errors import given_model_options
 from hnn_pl.data import SimulatedData
 from hnn_pl.models import HNN, AutoencoderHNN
-from hnn_pl.models.base import data_source, forget_last_parameter, observed_data
-from hnn_pl.safe_io import check_finite_weights, check_same_system, load_checkpoint
+from hnn_pl.models.base import (
+    TRAJECTORY_OPTIONS,
+    data_source,
+    forget_last_parameter,
+    observed_data,
+)
+from hnn_pl.safe_io import (
+    check_finite_weights,
+    check_same_system,
+    checkpoint_init_args,
+    load_checkpoint,
+    refuse_changed_options,
+)
 from hnn_pl.systems import MassSpring, Pendulum
 
 
@@ -311,12 +318,42 @@ def test_a_checkpoint_of_another_system_is_refused_naming_both(trained, tmp_path
 def test_trajectory_options_with_the_derivative_objective_are_refused(option):
     ((name, value),) = option.items()
     with pytest.raises(ValueError) as err:
-        HNN(**option)
-    assert _one_line(err) == (
+        HNN(objective="derivative", **option)
+    expected = (
         f"model.init_args {name}={value!r}: only the trajectory objective uses them, and "
         "objective is 'derivative': remove them, or set model.init_args.objective: trajectory"
     )
+    assert _one_line(err) == expected
     HNN(**{"objective": "trajectory", "learned_states": "sample", **option})
+    auto = HNN(**{"learned_states": "sample", **option})  # objective "auto": by the data
+    with pytest.raises(ValueError) as err:
+        auto.resolve_objective(SimpleNamespace(window=None))
+    assert _one_line(err) == expected.replace(f"{name}={value!r}", _unused(option))
+
+
+def _unused(option: dict) -> str:
+    """The options :func:`refuse_unused_options` names for ``learned_states: sample``
+    plus ``option`` under the derivative objective."""
+    given = {"learned_states": "sample", **option}
+    return ", ".join(f"{k}={given[k]!r}" for k in TRAJECTORY_OPTIONS if k in given)
+
+
+def test_the_objective_follows_the_data_unless_given():
+    """``objective: auto`` (the default) is the trajectory objective for data serving
+    windows and the derivative one otherwise, recorded in the hparams; given, it stays."""
+    model = HNN(hidden_dim=8)
+    assert model.objective == model.hparams.objective == "auto"
+    model.resolve_objective(SimpleNamespace(window=3))
+    assert model.objective == model.hparams.objective == "trajectory"
+    assert model.hparams_initial.objective == "trajectory"
+    model.resolve_objective(SimpleNamespace(window=None))  # resolved once: kept
+    assert model.objective == "trajectory"
+    plain = HNN(hidden_dim=8)
+    plain.resolve_objective(SimpleNamespace(window=None))
+    assert plain.objective == plain.hparams.objective == "derivative"
+    given = HNN(hidden_dim=8, objective="derivative")
+    given.resolve_objective(SimpleNamespace(window=3))
+    assert given.objective == "derivative"
 
 
 def test_defaults_of_trajectory_options_pass_and_states_options_need_learned_states():
@@ -370,7 +407,8 @@ def test_the_model_refuses_data_it_would_not_use(tmp_path):
     with pytest.raises(ValueError, match="keep_fraction: 0.5 thins only"):  # setup checks too
         _fit(HNN(hidden_dim=8), thinned)
     with pytest.raises(ValueError, match="window: 3 serves windows, which only the trajectory"):
-        HNN().check_data(_dm(tmp_path))
+        HNN(objective="derivative").check_data(_dm(tmp_path))
+    HNN().check_data(_dm(tmp_path))  # "auto": the windows make it the trajectory objective
     with pytest.raises(ValueError, match="objective: trajectory needs windows"):
         _model().check_data(_dm(tmp_path, window=None))
     _model().check_data(_dm(tmp_path, keep_fraction=0.5))
@@ -414,7 +452,7 @@ def test_checkpoint_options_are_restored_unless_given_and_refused_if_changed():
     config = SimpleNamespace(
         lr=0.5, hidden_dim=50, objective="trajectory", reinit_states=True, radius=(0.1, 1.0)
     )
-    with pytest.raises(CLIError) as err:
+    with pytest.raises(ValueError) as err:
         refuse_changed_options(ckpt, config, {"lr", "reinit_states"}, "checkpoint C")
     assert _one_line(err) == (
         "--model.init_args.lr=0.5: checkpoint C was trained with lr=0.003, and a run from a "
@@ -431,7 +469,7 @@ def test_checkpoint_options_are_restored_unless_given_and_refused_if_changed():
     }
     config.objective = "derivative"  # from the config file: restoring it would mislead
     with pytest.raises(
-        CLIError,
+        ValueError,
         match="was trained with objective='trajectory' but the config sets objective: 'derivative'",
     ):
         refuse_changed_options(ckpt, config, set(), "checkpoint C")

@@ -166,6 +166,8 @@ def test_each_config_logs_under_its_own_name_with_what_tells_runs_apart(run):
     assert shown["noise_std"].number_value == 0.1 and shown["n_trajectories"].number_value == 50
     assert shown["model_class"].string_value == hp["model_class"]
     assert {"system/class_path", "rollout_protocol/method", "inner_steps"} <= set(shown)
+    assert "_instantiator" not in shown and "_instantiator" not in hp  # LightningCLI's, no option
+    assert shown["objective"].string_value == hp["objective"] == "derivative"  # "auto", resolved
 
 
 def _hparams_summaries(log_dir: Path) -> int:

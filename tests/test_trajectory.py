@@ -142,7 +142,8 @@ def test_uneven_spacing_is_integrated_exactly_for_a_linear_field():
 def test_wrong_batch_kind_fails_in_one_line():
     y, t, index = _windows()
     pairs = (y[:, 0], y[:, 1])
-    for model, batch in [(HNN(objective="trajectory"), pairs), (Baseline(), (y, t, index))]:
+    derivative = Baseline(objective="derivative")
+    for model, batch in [(HNN(objective="trajectory"), pairs), (derivative, (y, t, index))]:
         with pytest.raises(ValueError) as err:
             model.training_loss(batch)
         assert "\n" not in str(err.value) and "objective" in str(err.value)

@@ -1,24 +1,14 @@
 """The CLI's error layer: every refusal is one line, and comes before any work.
 
-- :func:`one_line`: jsonargparse's nested, multi-line parse errors (and its usage
-  dump) become one line naming the option, with the closest valid names
-  (``did you mean hidden_dim?``).
-- a ``--ckpt_path`` is read as data (:func:`hnn_pl.safe_io.load_checkpoint`) and the
-  model class it names is compared *as a string* with the class the config builds
-  (:func:`hnn_pl.safe_io.check_model_class`); nothing a checkpoint names is imported.
-- :func:`checkpoint_init_args`: the plain hyperparameters of a checkpoint that the
-  config's class takes (what LightningCLI restores, without resolving a class path);
-  :func:`refuse_changed_options`: an option given on the command line (or the
-  objective) that differs from the checkpoint's is refused, never silently replaced.
-- :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor.
-- the plain commands' numeric options are read by type functions (:func:`positive_int`,
-  :func:`finite_float`, …) that refuse a value out of range, non-finite or not plainly
-  written (``1_5``, ``0x10``) at parse time, naming the option; the trainer's numbers
-  that Lightning takes unchecked are checked by :func:`check_trainer_numbers`.
+- :func:`one_line`: jsonargparse's nested, multi-line parse errors (and its usage dump)
+  as one line naming the option, with the closest valid names (``did you mean …?``);
+  class names are resolved only among the modules already imported.
+- :func:`check_ckpt_path`, :func:`given_model_options`: for a ``--ckpt_path``,
+  compared with the config by :mod:`hnn_pl.safe_io`.
+- :func:`check_starts`, :func:`check_trainer_numbers`, :func:`check_threads`: a
+  ``predict`` file of starts, the trainer's numbers Lightning takes unchecked, and
+  ``--threads`` (the plain commands' numbers: :mod:`hnn_pl.argtypes`).
 - :func:`user_error`: the one line an exception gives, or ``None`` for a bug.
-
-Class names are resolved only among modules already imported (the config's classes,
-imported when the config was parsed): see :func:`hnn_pl.safe_io.loaded_class`.
 """
 
 from __future__ import annotations
@@ -43,10 +33,6 @@ def program_name() -> str:
     return "hnn-pl" if name.startswith("hnn-pl") else "python -m hnn_pl"
 
 
-#: ``ckpt_path`` values Lightning resolves itself (not files)
-SPECIAL_CKPT_PATHS = ("last", "best", "hpc")
-
-
 class CLIError(ValueError):
     """Bad command-line input: printed as one line, exit status 2."""
 
@@ -58,7 +44,7 @@ USER_ERRORS = (ValueError, OSError, FloatingPointError, pickle.UnpicklingError)
 
 def user_error(err: BaseException) -> str | None:
     """The message of the innermost bad-input exception behind ``err`` (jsonargparse
-    wraps the one an ``__init__`` raised), or ``None`` if there is none."""
+    wraps an ``__init__``'s), or ``None``."""
     found, seen = None, set()
     while err is not None and id(err) not in seen:
         seen.add(id(err))
@@ -72,52 +58,15 @@ def user_error(err: BaseException) -> str | None:
 
 class OneLineParser(argparse.ArgumentParser):
     """argparse for the plain commands (``reproduce``, ``bump``, ``stress``): a bad
-    option is a :class:`CLIError`, printed by ``__main__`` as one line, no usage dump;
-    argparse's ``argument --x: must be …`` reads ``--x must be …``."""
+    option is a one-line :class:`CLIError` (``--x must be …``), no usage dump."""
 
     def error(self, message: str):
         message = re.sub(r"^argument (\S+): (must )", r"\1 \2", message)
         raise CLIError(re.sub(r"^argument (\S+): ", r"\1: ", message))
 
 
-# ------------------------------------------------------------------ option values
-
-_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
-
-
-def finite_float(text: str) -> float:
-    """An argparse ``type``: a plain decimal number that is finite as a float (``nan``,
-    ``inf``, ``1e999``, ``1_5`` refused)."""
-    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """An argparse ``type``: a finite number ``> 0`` (a horizon, a step)."""
-    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
-
-
-def output_directory(text: str) -> Path:
-    """An argparse ``type``: a directory to write into, absent (made when written) or a
-    directory; a path naming a file, or below one, is refused."""
-    path = Path(text)
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is a file; name a directory to write into")
-    for parent in path.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise argparse.ArgumentTypeError(f"{text}: {parent} is not a directory")
-            break
-    return path
-
-
-#: trainer options Lightning takes without a check (a 0 divides by zero at the first
-#: step, a negative count is silently read as another): name -> least value
+#: trainer counts Lightning takes unchecked (a 0 divides by zero, a negative one is read
+#: as another): name -> least value
 TRAINER_COUNTS = {
     "check_val_every_n_epoch": 1,
     "accumulate_grad_batches": 1,
@@ -130,8 +79,8 @@ TRAINER_COUNTS = {
 
 def check_trainer_numbers(trainer: Mapping[str, Any]) -> None:
     """Refuse, naming the option, a trainer count below :data:`TRAINER_COUNTS`, a
-    ``val_check_interval`` that is not a finite number > 0 and a ``gradient_clip_val``
-    that is not finite and >= 0 (``None``: Lightning's default)."""
+    ``val_check_interval`` not finite and > 0, a ``gradient_clip_val`` not finite and
+    >= 0."""
     for name, least in TRAINER_COUNTS.items():
         value = trainer.get(name)
         if value is not None and value < least:
@@ -146,9 +95,8 @@ def check_trainer_numbers(trainer: Mapping[str, Any]) -> None:
 
 def did_you_mean(word: str, candidates: list[str] | set[str], prefix: str = "") -> str:
     """``"; did you mean X?"`` (or ``"X or Y?"``) for the closest candidates, else ``""``."""
-    scored = sorted((difflib.SequenceMatcher(None, word, c).ratio(), c) for c in set(candidates))[
-        ::-1
-    ]
+    ratio = lambda c: difflib.SequenceMatcher(None, word, c).ratio()  # noqa: E731
+    scored = sorted(((ratio(c), c) for c in set(candidates)), reverse=True)
     close = [c for r, c in scored[:2] if r >= 0.6 and r >= scored[0][0] - 0.1]
     if not close:
         return ""
@@ -168,8 +116,6 @@ def init_parameters(cls: type) -> list[str]:
             break
     return list(dict.fromkeys(names))
 
-
-# --------------------------------------------------------------------- parse errors
 
 _NOISE = (
     "Does not validate against",
@@ -208,7 +154,7 @@ def one_line(message: str, parser: Any = None) -> str:
     missing = re.search(r"module '([^']+)' has no attribute '([^']+)'", text)
     if missing:
         module, name = missing.groups()
-        found = [n for n, v in vars(sys.modules.get(module, object)).items() if _public_class(n, v)]
+        found = _public_classes(module)
         return f"{key}no class {name} in {module}" + did_you_mean(name, found, module + ".")
     short = re.search(r"Expected a dot import path string: (\S+)", text)
     if short:
@@ -226,18 +172,16 @@ def one_line(message: str, parser: Any = None) -> str:
     return f"{key}{detail}{where}"
 
 
-def _public_class(name: str, value: Any) -> bool:
-    return isinstance(value, type) and not name.startswith("_")
+def _public_classes(module: str) -> list[str]:
+    """The public class names of ``module``, if it is imported."""
+    items = vars(sys.modules.get(module, object)).items()
+    return [n for n, v in items if isinstance(v, type) and not n.startswith("_")]
 
 
 def _known_class_names() -> set[str]:
     """Short names of the classes of the packages the CLI registers."""
-    names: set[str] = set()
-    for package in ("hnn_pl.models", "hnn_pl.data", "hnn_pl.systems", "hnn_pl.callbacks"):
-        names |= {
-            n for n, v in vars(sys.modules.get(package, object)).items() if _public_class(n, v)
-        }
-    return names
+    packages = ("hnn_pl.models", "hnn_pl.data", "hnn_pl.systems", "hnn_pl.callbacks")
+    return {name for package in packages for name in _public_classes(package)}
 
 
 def _option_strings(parser: Any) -> set[str]:
@@ -254,30 +198,15 @@ def _option_strings(parser: Any) -> set[str]:
     return found
 
 
-# ------------------------------------------------------------------- checkpoints
-
-
 def check_ckpt_path(ckpt_path: str | None) -> bool:
     """Whether ``ckpt_path`` names a file to check; a missing one is a :class:`CLIError`."""
+    from hnn_pl.loggers import SPECIAL_CKPT_PATHS
+
     if not ckpt_path or ckpt_path in SPECIAL_CKPT_PATHS or str(ckpt_path).startswith("registry"):
         return False
     if not Path(ckpt_path).exists():
         raise CLIError(f"checkpoint {ckpt_path}: no such file")
     return True
-
-
-def _plain(value: Any) -> bool:
-    if isinstance(value, (list, tuple)):
-        return all(_plain(v) for v in value)
-    return value is None or isinstance(value, (bool, int, float, str))
-
-
-#: model options a checkpoint never restores: linked from the data, or about the run
-#: itself (``reinit_states``: what a resumed fit does with learned states)
-NOT_RESTORED = ("input_dim", "reinit_states")
-#: model options whose checkpoint value must be the config's: restoring it silently
-#: would make the model refuse the config's data
-MUST_MATCH = ("objective",)
 
 
 def given_model_options(argv: list[str]) -> set[str]:
@@ -289,63 +218,6 @@ def given_model_options(argv: list[str]) -> set[str]:
         if m and m.group(1) not in ("help", "class_path", "init_args", "dict_kwargs"):
             found.add(m.group(1))
     return found
-
-
-def checkpoint_init_args(
-    ckpt: dict[str, Any], init_args: Any, given: set[str] | frozenset[str] = frozenset()
-) -> dict[str, Any]:
-    """The checkpoint's hyperparameters that restore the config's ``init_args``: keys the
-    config already has with a plain value, given plain values (never a class path),
-    except :data:`NOT_RESTORED` and the options ``given`` on the command line (which
-    :func:`refuse_changed_options` has compared)."""
-    hparams = ckpt.get("hyper_parameters") or {}
-    current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
-    return {
-        k: v
-        for k, v in hparams.items()
-        if k in current
-        and k not in NOT_RESTORED
-        and k not in given
-        and _plain(v)
-        and _plain(current[k])
-    }
-
-
-def refuse_changed_options(
-    ckpt: dict[str, Any], init_args: Any, given: set[str], where: str
-) -> None:
-    """A run from a checkpoint keeps the options it was trained with: a model option
-    ``given`` on the command line with another value than the checkpoint's, or one of
-    :data:`MUST_MATCH` that the config sets otherwise, is a :class:`CLIError` naming
-    both values (never silently replaced; :data:`NOT_RESTORED` excepted)."""
-    hparams = ckpt.get("hyper_parameters") or {}
-    current = vars(init_args) if init_args is not None and hasattr(init_args, "__dict__") else {}
-    for k in [*sorted(given), *MUST_MATCH]:
-        if k in NOT_RESTORED or k not in hparams or k not in current:
-            continue
-        saved, value = hparams[k], current[k]
-        if not (_plain(saved) and _plain(value)) or _same(saved, value):
-            continue
-        if k in given:
-            raise CLIError(
-                f"--model.init_args.{k}={value}: {where} was trained with {k}={saved!r}, and "
-                "a run from a checkpoint keeps the options it was trained with: remove the "
-                "option, or fit anew without --ckpt_path"
-            )
-        raise CLIError(
-            f"{where} was trained with {k}={saved!r} but the config sets {k}: {value!r}: use "
-            "the config the checkpoint was trained with"
-        )
-
-
-def _same(a: Any, b: Any) -> bool:
-    """Equal plain values, a list equal to a tuple of the same items."""
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return list(a) == list(b)
-    return a == b
-
-
-# ------------------------------------------------------------------------ starts
 
 
 def check_starts(path: str, width: int) -> None:
@@ -376,8 +248,8 @@ def check_starts(path: str, width: int) -> None:
 
 
 def check_threads(requested: Any) -> int | None:
-    """``--threads``: ``None`` for ``"auto"``/unset, else an integer >= 1 (a plain one:
-    ``1.5``, ``1_5``, ``nan`` refused), else :class:`CLIError` naming the option."""
+    """``--threads``: ``None`` for ``"auto"``/unset, else a plain integer >= 1 (``1.5``,
+    ``1_5``, ``nan`` refused, naming the option)."""
     if requested in (None, "auto"):
         return None
     text = str(requested)

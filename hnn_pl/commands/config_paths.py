@@ -1,17 +1,11 @@
-"""Finding configs: a path, or a bare name looked up in the bundled configs.
+"""Finding configs: a path, or a bare name looked up in the bundled configs (the
+repository's ``configs/``, shipped as the package ``hnn_pl.configs``).
 
-The bundled configs are the repository's top-level ``configs/``, which the wheel ships
-as the package ``hnn_pl.configs`` (``package-dir`` in pyproject.toml), so the same
-lookup works in a checkout (editable install) and in an installed wheel.
-
-A config may name another as its ``base:`` (a path relative to the config's directory,
-or a bundled config's name); it then holds only what differs from that config, and
-``--config child.yaml`` is read as ``--config <base> --config <child without base>``:
-jsonargparse applies the later config over the earlier one, as with two ``--config``
-given by hand (mappings merge key by key, a list or value replaces the base's, a new
-``class_path`` keeps the ``init_args`` the new class accepts). Bases chain.
-
-Kept free of heavy imports so ``python -m hnn_pl --help`` is instant.
+A config may name another as its ``base:`` (a path beside it, or a bundled config's
+name) and hold only what differs: ``--config child.yaml`` is read as ``--config <base>
+--config <child without base>``, the later applied over the earlier by jsonargparse
+(mappings merge key by key, a list or value replaces the base's). Bases chain. No
+heavy imports: ``python -m hnn_pl --help`` stays instant.
 """
 
 from __future__ import annotations
@@ -33,14 +27,12 @@ CONFIG_DIR = config_dir()
 
 
 def resolve_config(name: str) -> str:
-    """A config path as given if it exists, else ``<bundled configs>/<name>[.yaml]``.
-
-    Raises:
-        FileNotFoundError: neither exists; the message lists the bundled configs.
-        ValueError: the file is not a YAML mapping (see :func:`check_config_file`).
-    """
+    """A config path as given if it exists, else ``<bundled configs>/<name>[.yaml]``;
+    ``FileNotFoundError`` naming the bundled configs, or ``ValueError`` for a file that
+    is not a YAML mapping."""
     if Path(name).is_file():
-        return check_config_file(name)
+        load_config_file(name)  # a YAML mapping, else one line naming the fault
+        return name
     bundled = _bundled(name)
     if bundled is None:
         raise FileNotFoundError(f"config {name!r} is neither a file nor " + _suggest(name))
@@ -67,12 +59,6 @@ def _suggest(name: str) -> str:
     return "one of the bundled configs: " + ", ".join(names)
 
 
-def check_config_file(path: str) -> str:
-    """``path`` if it holds a YAML mapping; else ValueError naming the file and the fault."""
-    load_config_file(path)
-    return path
-
-
 def load_config_file(path: str) -> dict:
     """The YAML mapping in ``path``; else ValueError naming the file and the fault."""
     import yaml
@@ -96,12 +82,8 @@ def load_config_file(path: str) -> dict:
 
 def config_chain(path: str) -> list[tuple[str, dict]]:
     """``(path, mapping)`` of the config at ``path`` and of its bases, the first base
-    first; each mapping without its ``base`` key.
-
-    Raises:
-        ValueError: a base that is not a config name, is not found, or leads back to a
-            config of the chain (a cycle).
-    """
+    first, each without its ``base`` key; ``ValueError`` for a base that is not a
+    config name, is not found, or closes a cycle."""
     chain: list[tuple[str, dict]] = []
     while True:
         data = dict(load_config_file(path))

@@ -1,9 +1,7 @@
 """Entry point: ``python -m hnn_pl <command> ...``, or the console script ``hnn-pl``.
 
-The top-level help is printed without importing Lightning, so it is instant. Bad
-input (a bad option value, file or config, a non-finite loss) ends with one line,
-``<prog>: error: <what>``, and exit status 2; ``HNN_PL_TRACEBACK=1`` shows the
-traceback.
+The top-level help imports no Lightning (instant). Bad input ends with one line,
+``<prog>: error: <what>``, exit status 2 (``HNN_PL_TRACEBACK=1``: the traceback).
 """
 
 from __future__ import annotations
@@ -56,18 +54,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"hnn_pl {__version__}")
         return
     try:
-        if argv[0] == "reproduce":
-            from hnn_pl.commands.reproduce import main as reproduce
+        if argv[0] in ("reproduce", "bump", "stress"):  # light until they have parsed
+            from hnn_pl.commands import bump, reproduce, stress
 
-            sys.exit(reproduce(argv[1:]))
-        if argv[0] == "bump":
-            from hnn_pl.commands.bump import main as bump
-
-            sys.exit(bump(argv[1:]))
-        if argv[0] == "stress":
-            from hnn_pl.commands.stress import main as stress
-
-            sys.exit(stress(argv[1:]))
+            plain = {"reproduce": reproduce, "bump": bump, "stress": stress}
+            sys.exit(plain[argv[0]].main(argv[1:]))
         from hnn_pl.commands.cli import cli_main
 
         cli_main(argv)

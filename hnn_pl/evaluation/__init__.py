@@ -25,7 +25,13 @@ from hnn_pl.evaluation.metrics import (
     velocity_energy_mse,
 )
 from hnn_pl.evaluation.observer import Observation, ObserverStatus, infer_starts, observe
-from hnn_pl.evaluation.protocols import Protocol, ReferenceProtocol, describe, task_protocol
+from hnn_pl.evaluation.protocols import (
+    Protocol,
+    ReferenceProtocol,
+    data_protocol,
+    describe,
+    task_protocol,
+)
 from hnn_pl.evaluation.reference import ReferenceCase, reference_case
 from hnn_pl.evaluation.views import apply_probe, fit_probe, is_pixel_model, rollout, view_of
 
@@ -61,6 +67,7 @@ __all__ = [
     "rollout",
     "score",
     "task_protocol",
+    "data_protocol",
     "velocity_energy",
     "velocity_energy_mse",
     "view_of",

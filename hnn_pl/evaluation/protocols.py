@@ -244,3 +244,27 @@ def task_protocol(
         return build(spec).replace(**(overrides or {}))
     except TypeError as e:
         raise ValueError(f"overrides {overrides}: {e}") from None
+
+
+def data_protocol(
+    datamodule: Any, name: str = "clean", overrides: dict[str, Any] | None = None
+) -> Protocol | ReferenceProtocol:
+    """The protocol ``name`` of the task ``datamodule`` holds the data of
+    (:data:`hnn_pl.tasks.DATA_TASKS`: by its class, else by its system's unless it is a
+    recording). Data of no task has only a ``"clean"`` protocol: a recording's
+    :data:`hnn_pl.tasks.RECORDED`, else the default rollout."""
+    recorded = getattr(datamodule, "recording", None) is not None
+    system = None if recorded else getattr(datamodule, "system", None)
+    for cls in (type(datamodule), type(system)):
+        if cls.__name__ in tasks.DATA_TASKS:
+            return task_protocol(tasks.DATA_TASKS[cls.__name__], name, overrides)
+    if name != "clean":
+        raise ValueError(
+            f"{type(datamodule).__name__} holds no task's data: only the clean protocol "
+            f"applies, got {name!r}; name a task"
+        )
+    spec = tasks.RECORDED if recorded else tasks.rollout()
+    try:
+        return build(spec).replace(**(overrides or {}))
+    except TypeError as e:
+        raise ValueError(f"overrides {overrides}: {e}") from None

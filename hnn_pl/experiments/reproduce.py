@@ -67,38 +67,9 @@ class Call:
 
 
 def add_arguments(parser: ArgumentParser) -> None:
-    """The options of ``reproduce``."""
-    parser.add_argument(
-        "--tasks",
-        nargs="+",
-        default=None,
-        choices=list(paper.PAPER),
-        help="default: the state tasks (recipe traj: those with traj configs); add pixel "
-        "explicitly",
-    )
-    parser.add_argument(
-        "--models",
-        nargs="+",
-        default=["baseline", "hnn"],
-        choices=list(paper.MODELS),
-        help="default: baseline hnn; dissipative runs where a task has it (real_pendulum)",
-    )
-    parser.add_argument(
-        "--recipe",
-        default="paper",
-        choices=(*paper.RECIPES, "positions"),
-        help="paper: the paper's settings (TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
-        "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml); "
-        "positions: from positions alone (TASK_positions*.yaml) beside the states-only and "
-        "finite-difference fits, scored through the observer (RESULTS_positions.md)",
-    )
-    parser.add_argument("--seeds", type=positive_int, default=3, help="number of seeds (0, 1, …)")
-    parser.add_argument(
-        "--first-seed",
-        type=non_negative_int,
-        default=0,
-        help="start at this seed (extend a --merge run)",
-    )
+    """The options of ``reproduce``: which runs (:func:`_run_arguments`), then how and
+    where."""
+    _run_arguments(parser)
     parser.add_argument(
         "--workers", type=non_negative_int, default=2, help="processes; 0 runs in this process"
     )
@@ -129,6 +100,41 @@ def add_arguments(parser: ArgumentParser) -> None:
         "--merge",
         action="store_true",
         help="keep the runs already in the JSON file that this call does not redo",
+    )
+
+
+def _run_arguments(parser: ArgumentParser) -> None:
+    """The options that choose the runs: tasks, models, recipe, seeds."""
+    parser.add_argument(
+        "--tasks",
+        nargs="+",
+        default=None,
+        choices=list(paper.PAPER),
+        help="default: the state tasks (recipe traj: those with traj configs); add pixel "
+        "explicitly",
+    )
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=["baseline", "hnn"],
+        choices=list(paper.MODELS),
+        help="default: baseline hnn; dissipative runs where a task has it (real_pendulum)",
+    )
+    parser.add_argument(
+        "--recipe",
+        default="paper",
+        choices=(*paper.RECIPES, "positions"),
+        help="paper: the paper's settings (TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
+        "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml); "
+        "positions: from positions alone (TASK_positions*.yaml) beside the states-only and "
+        "finite-difference fits, scored through the observer (RESULTS_positions.md)",
+    )
+    parser.add_argument("--seeds", type=positive_int, default=3, help="number of seeds (0, 1, …)")
+    parser.add_argument(
+        "--first-seed",
+        type=non_negative_int,
+        default=0,
+        help="start at this seed (extend a --merge run)",
     )
 
 

@@ -4,6 +4,7 @@ losses and metrics, the learned states; the optimiser and schedule are the recip
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import torch
@@ -158,6 +159,60 @@ def with_momenta(obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor, state_dim: int)
     return torch.cat([obs_y, v.to(obs_y.dtype)], -1)
 
 
+def check_options(
+    input_dim: Any, hidden_dim: Any, n_hidden: Any, objective: Any, options: dict[str, Any]
+) -> None:
+    """One-line ``ValueError`` for a :class:`DynamicsModel` option out of its range: the
+    sizes, ``objective``, and the trajectory ``options`` (:data:`TRAJECTORY_OPTIONS`:
+    their values, and those that would do nothing, :func:`refuse_unused_options`)."""
+    from hnn_pl.integrate import WINDOW_METHODS
+
+    if not (
+        is_count(input_dim, 2)
+        and input_dim % 2 == 0
+        and is_count(hidden_dim)
+        and is_count(n_hidden)
+    ):
+        raise ValueError(
+            "input_dim must be even and >= 2 (y = (q, p)), hidden_dim and n_hidden >= 1; "
+            f"got input_dim={input_dim}, hidden_dim={hidden_dim}, n_hidden={n_hidden}"
+        )
+    o = options
+    choices = (*OBJECTIVES, "auto")
+    for ok, message in [
+        (objective in choices, f"objective must be one of {choices}: {objective!r}"),
+        (
+            o["traj_method"] in WINDOW_METHODS,
+            f"traj_method must be one of {WINDOW_METHODS}: {o['traj_method']!r}",
+        ),
+        (is_count(o["substeps"]), f"substeps must be an integer >= 1: {o['substeps']}"),
+        (
+            o["learned_states"] in LEARNED_STATES,
+            f"learned_states must be one of {LEARNED_STATES}: {o['learned_states']!r}",
+        ),
+        (
+            is_weight(o["state_weight"]),
+            f"state_weight must be finite and >= 0: {o['state_weight']}",
+        ),
+        (
+            is_weight(o["continuity_weight"]),
+            f"continuity_weight must be finite and >= 0: {o['continuity_weight']}",
+        ),
+        (
+            isinstance(o["reinit_states"], bool),
+            f"reinit_states must be true or false: {o['reinit_states']!r}",
+        ),
+    ]:
+        if not ok:
+            raise ValueError(message)
+    refuse_unused_options(objective, o["learned_states"], options)
+    if o["continuity_weight"] and o["learned_states"] != "sample":
+        raise ValueError(
+            f"continuity_weight > 0 only with learned_states: sample: {o['continuity_weight']} "
+            f"with {o['learned_states']!r}"
+        )
+
+
 class DynamicsModel(RecipeModel):
     """A LightningModule that learns ``dy/dt = f_θ(y)`` from derivatives or from trajectories.
 
@@ -210,7 +265,9 @@ class DynamicsModel(RecipeModel):
         hidden_dim: ``h``, the MLP's width (200 in the paper).
         n_hidden: number of hidden layers (2).
         activation: hidden nonlinearity (``"tanh"``).
-        objective: ``"derivative"`` or ``"trajectory"``.
+        objective: ``"derivative"``, ``"trajectory"`` or ``"auto"``: the trajectory
+            objective for data that serve windows (``window`` set), else the
+            derivative one, fixed when the model first sees its data.
         traj_method: fixed-step method of the trajectory objective: ``"rk4"``,
             ``"leapfrog"``, ``"implicit_midpoint"`` (or ``"euler"``).
         substeps: integration steps between consecutive samples.
@@ -232,7 +289,7 @@ class DynamicsModel(RecipeModel):
         hidden_dim: int = 200,
         n_hidden: int = 2,
         activation: str = "tanh",
-        objective: str = "derivative",
+        objective: str = "auto",
         traj_method: str = "rk4",
         substeps: int = 1,
         learned_states: str = "none",
@@ -241,59 +298,16 @@ class DynamicsModel(RecipeModel):
         reinit_states: bool = False,
         **kwargs,
     ) -> None:
-        from hnn_pl.integrate import WINDOW_METHODS
-
         super().__init__(**kwargs)
-        if not (
-            is_count(input_dim, 2)
-            and input_dim % 2 == 0
-            and is_count(hidden_dim)
-            and is_count(n_hidden)
-        ):
-            raise ValueError(
-                "input_dim must be even and >= 2 (y = (q, p)), hidden_dim and n_hidden >= 1; "
-                f"got input_dim={input_dim}, hidden_dim={hidden_dim}, n_hidden={n_hidden}"
-            )
-        for ok, message in [
-            (objective in OBJECTIVES, f"objective must be one of {OBJECTIVES}: {objective!r}"),
-            (
-                traj_method in WINDOW_METHODS,
-                f"traj_method must be one of {WINDOW_METHODS}: {traj_method!r}",
-            ),
-            (is_count(substeps), f"substeps must be an integer >= 1: {substeps}"),
-            (
-                learned_states in LEARNED_STATES,
-                f"learned_states must be one of {LEARNED_STATES}: {learned_states!r}",
-            ),
-            (is_weight(state_weight), f"state_weight must be finite and >= 0: {state_weight}"),
-            (
-                is_weight(continuity_weight),
-                f"continuity_weight must be finite and >= 0: {continuity_weight}",
-            ),
-            (
-                isinstance(reinit_states, bool),
-                f"reinit_states must be true or false: {reinit_states!r}",
-            ),
-        ]:
-            if not ok:
-                raise ValueError(message)
-        refuse_unused_options(
-            objective,
-            learned_states,
-            dict(
-                traj_method=traj_method,
-                substeps=substeps,
-                learned_states=learned_states,
-                state_weight=state_weight,
-                continuity_weight=continuity_weight,
-                reinit_states=reinit_states,
-            ),
+        options = dict(
+            traj_method=traj_method,
+            substeps=substeps,
+            learned_states=learned_states,
+            state_weight=state_weight,
+            continuity_weight=continuity_weight,
+            reinit_states=reinit_states,
         )
-        if continuity_weight and learned_states != "sample":
-            raise ValueError(
-                f"continuity_weight > 0 only with learned_states: sample: {continuity_weight} "
-                f"with {learned_states!r}"
-            )
+        check_options(input_dim, hidden_dim, n_hidden, objective, options)
         self.objective, self.traj_method, self.substeps = objective, traj_method, substeps
         self.learned_states, self.state_weight = learned_states, state_weight
         self.continuity_weight, self.reinit_states = continuity_weight, reinit_states
@@ -374,6 +388,7 @@ class DynamicsModel(RecipeModel):
         ``keep_fraction`` < 1 with the derivative objective (it thins only the windows'
         tables), and for ``stage="fit"`` positions alone without learned states.
         ``stage="predict"`` passes: its loader serves states whatever the objective."""
+        self.resolve_objective(datamodule)
         if stage == "predict":
             return
         window = getattr(datamodule, "window", None)
@@ -401,6 +416,22 @@ class DynamicsModel(RecipeModel):
                     "positions alone give no momenta to start a window from: set "
                     "model.init_args.learned_states: sample (or trajectory)"
                 )
+
+    def resolve_objective(self, datamodule: Any) -> None:
+        """``objective="auto"`` made ``"trajectory"`` for data that serve windows
+        (``datamodule.window`` set), else ``"derivative"``; then the trajectory options
+        that would do nothing are refused (:func:`refuse_unused_options`), and the
+        hyperparameters record the objective in use. Other objectives stay as given
+        (:meth:`check_data` refuses data that do not fit them)."""
+        if self.objective != "auto":
+            return
+        window = getattr(datamodule, "window", None)
+        objective = "trajectory" if window is not None else "derivative"
+        options = {k: getattr(self, k) for k in TRAJECTORY_OPTIONS}
+        refuse_unused_options(objective, self.learned_states, options)
+        self.objective = self.hparams["objective"] = objective
+        if hasattr(self, "_hparams_initial"):
+            self._hparams_initial["objective"] = objective
 
     def setup(self, stage: str) -> None:
         dm = self.trainer.datamodule if self._trainer is not None else None
@@ -506,8 +537,11 @@ class DynamicsModel(RecipeModel):
     # ------------------------------------------------------------------ objectives
 
     def _batch(self, batch: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
-        """``batch`` checked against the objective (one-line error on the wrong kind)."""
+        """``batch`` checked against the objective (one-line error on the wrong kind;
+        ``"auto"`` not yet resolved, as without a DataModule: resolved by the batch)."""
         window = len(batch) == 3 and batch[0].ndim == 3
+        if self.objective == "auto":
+            self.resolve_objective(SimpleNamespace(window=batch[0].shape[1] if window else None))
         if window != (self.objective == "trajectory"):
             raise ValueError(
                 f"model.objective={self.objective!r} got a batch of "
