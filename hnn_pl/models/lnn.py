@@ -1,0 +1,60 @@
+"""The Lagrangian Neural Network: an MLP for ``L_θ(q, q̇)``, accelerations by Euler–Lagrange."""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from hnn_pl.models.recipe import is_weight
+from hnn_pl.models.velocity import VelocityModel
+from hnn_pl.nets import MLP
+from hnn_pl.nets.lagrangian import ON_SINGULAR, LagrangianField
+
+
+class LNN(VelocityModel):
+    """``L_θ(q, q̇) = MLP(cat(q, q̇)): 2k → h → h → 1`` (Cranmer et al. 2020); the field
+    on ``(q, q̇)`` is ``(q̇, q̈_θ)`` with
+    ``∂²L_θ/∂q̇² q̈_θ = ∂L_θ/∂q − (∂²L_θ/∂q̇∂q) q̇``, one batched solve
+    (:func:`~hnn_pl.nets.lagrangian.euler_lagrange`). The learned energy
+    ``E_θ = q̇·∂L_θ/∂q̇ − L_θ`` is the model's ``hamiltonian``.
+
+    A row whose ``∂²L_θ/∂q̇²`` is singular or ill-conditioned (``min|λ| ≤ rcond·max|λ|``)
+    has no unique acceleration: it is solved with the ridge ``ridge·max(max|λ|, 1)·I``
+    and counted, the share of such rows logged as ``train/singular_fraction`` each
+    step (``on_singular="ridge"``), or refused with a ``FloatingPointError``
+    (``"raise"``). Data and objectives: :class:`~hnn_pl.models.velocity.VelocityModel`.
+
+    Args:
+        rcond: the relative eigenvalue bound below which a Hessian is singular.
+        ridge: the relative ridge of singular rows.
+        on_singular: ``"ridge"`` or ``"raise"``.
+        **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
+    """
+
+    def __init__(
+        self, rcond: float = 1e-6, ridge: float = 1e-3, on_singular: str = "ridge", **kwargs
+    ) -> None:
+        if not (is_weight(rcond) and is_weight(ridge) and ridge > 0):
+            raise ValueError(f"rcond must be >= 0 and ridge > 0, finite: {rcond}, {ridge}")
+        if on_singular not in ON_SINGULAR:
+            raise ValueError(f"on_singular must be one of {ON_SINGULAR}: {on_singular!r}")
+        self.rcond, self.ridge, self.on_singular = rcond, ridge, on_singular
+        super().__init__(**kwargs)
+
+    def build_field(
+        self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
+    ) -> LagrangianField:
+        net = MLP(input_dim, 1, hidden_dim, n_hidden, activation)
+        return LagrangianField(net, self.rcond, self.ridge, self.on_singular)
+
+    def lagrangian(self, x: Tensor) -> Tensor:
+        """``L_θ(q, q̇)``: ``(B, 2k) -> (B,)``."""
+        q, v = x.chunk(2, -1)
+        return self.field.lagrangian(q, v)
+
+    def energy(self, x: Tensor) -> Tensor:
+        """``E_θ(q, q̇) = q̇·∂L_θ/∂q̇ − L_θ``: ``(B, 2k) -> (B,)``."""
+        return self.field.energy(x)
+
+    def hamiltonian(self, y: Tensor) -> Tensor:
+        """The learned energy in the data's coordinates (``field.hamiltonian``)."""
+        return self.field.hamiltonian(y)
