@@ -11,7 +11,8 @@ from hnn_pl.nets.lagrangian import ON_SINGULAR, LagrangianField
 
 
 class LNN(VelocityModel):
-    """``L_θ(q, q̇) = MLP(cat(q, q̇)): 2k → h → h → 1`` (Cranmer et al. 2020); the field
+    """``L_θ(q, q̇) = ½ c|q̇|² + MLP(cat(q, q̇))``, ``MLP: 2k → h → h → 1`` (Cranmer et al.
+    2020, with a kinetic prior); the field
     on ``(q, q̇)`` is ``(q̇, q̈_θ)`` with
     ``∂²L_θ/∂q̇² q̈_θ = ∂L_θ/∂q − (∂²L_θ/∂q̇∂q) q̇``, one batched solve
     (:func:`~hnn_pl.nets.lagrangian.euler_lagrange`). The learned energy
@@ -23,7 +24,14 @@ class LNN(VelocityModel):
     step (``on_singular="ridge"``), or refused with a ``FloatingPointError``
     (``"raise"``). Data and objectives: :class:`~hnn_pl.models.velocity.VelocityModel`.
 
+    ``kinetic_prior = c`` (default 1) makes ``L_θ = ½ c|q̇|² + MLP(q, q̇)``: the
+    network corrects a unit-mass kinetic term, so the first steps solve with a Hessian
+    near ``cI`` rather than a random MLP's, often nearly singular one (whose accelerations
+    threw the spring's first trajectory steps to losses of 1e8); ``0`` is Cranmer et al.'s
+    plain ``L_θ = MLP``.
+
     Args:
+        kinetic_prior: ``c``.
         rcond: the relative eigenvalue bound below which a Hessian is singular.
         ridge: the relative ridge of singular rows.
         on_singular: ``"ridge"`` or ``"raise"``.
@@ -31,20 +39,29 @@ class LNN(VelocityModel):
     """
 
     def __init__(
-        self, rcond: float = 1e-6, ridge: float = 1e-3, on_singular: str = "ridge", **kwargs
+        self,
+        kinetic_prior: float = 1.0,
+        rcond: float = 1e-6,
+        ridge: float = 1e-3,
+        on_singular: str = "ridge",
+        **kwargs,
     ) -> None:
-        if not (is_weight(rcond) and is_weight(ridge) and ridge > 0):
-            raise ValueError(f"rcond must be >= 0 and ridge > 0, finite: {rcond}, {ridge}")
+        if not (is_weight(kinetic_prior) and is_weight(rcond) and is_weight(ridge) and ridge > 0):
+            raise ValueError(
+                "kinetic_prior and rcond must be finite and >= 0, ridge > 0: "
+                f"{kinetic_prior}, {rcond}, {ridge}"
+            )
         if on_singular not in ON_SINGULAR:
             raise ValueError(f"on_singular must be one of {ON_SINGULAR}: {on_singular!r}")
-        self.rcond, self.ridge, self.on_singular = rcond, ridge, on_singular
+        self.kinetic_prior, self.rcond, self.ridge = kinetic_prior, rcond, ridge
+        self.on_singular = on_singular
         super().__init__(**kwargs)
 
     def build_field(
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> LagrangianField:
         net = MLP(input_dim, 1, hidden_dim, n_hidden, activation)
-        return LagrangianField(net, self.rcond, self.ridge, self.on_singular)
+        return LagrangianField(net, self.kinetic_prior, self.rcond, self.ridge, self.on_singular)
 
     def lagrangian(self, x: Tensor) -> Tensor:
         """``L_θ(q, q̇)``: ``(B, 2k) -> (B,)``."""

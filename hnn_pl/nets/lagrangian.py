@@ -67,15 +67,17 @@ def lagrangian_terms_autograd(lagrangian: Lagrangian, q: Tensor, v: Tensor) -> L
     loop over the ``k`` degrees of freedom, none over samples): the same numbers, kept to
     compare costs (``benchmarks/lagrangian_step.py``)."""
     record = torch.is_grad_enabled()
+
+    def grad_v(out: Tensor) -> Tensor:
+        (g,) = torch.autograd.grad(out.sum(), v, create_graph=True, allow_unused=True)
+        return torch.zeros_like(v) if g is None else g
+
     with torch.enable_grad():
         q = q if q.requires_grad else q.detach().requires_grad_(True)
         v = v if v.requires_grad else v.detach().requires_grad_(True)
         dl_dq, dl_dv = torch.autograd.grad(lagrangian(q, v).sum(), (q, v), create_graph=True)
-        rows = [
-            torch.autograd.grad(dl_dv[:, i].sum(), v, create_graph=True)[0]
-            for i in range(q.shape[-1])
-        ]
-        (mixed,) = torch.autograd.grad((dl_dq * v.detach()).sum(), v, create_graph=True)
+        rows = [grad_v(dl_dv[:, i]) for i in range(q.shape[-1])]
+        mixed = grad_v(dl_dq * v.detach())
     terms = LagrangianTerms(dl_dq, dl_dv, torch.stack(rows, 1), mixed)
     return terms if record else LagrangianTerms(*(t.detach() for t in terms))
 
@@ -364,12 +366,19 @@ class LagrangianField(VelocityField):
     Euler–Lagrange accelerations (:func:`euler_lagrange`); energy
     ``E_θ = q̇·∂L_θ/∂q̇ − L_θ``.
 
+    ``kinetic_prior = c > 0`` adds ``½ c |q̇|²``: ``L_θ = ½ c|q̇|² + net``, a unit-mass
+    kinetic term the network corrects (any ``L`` stays representable); it keeps a
+    freshly initialised ``∂²L_θ/∂q̇²`` near ``cI`` instead of a random, often nearly
+    singular matrix, whose inverse otherwise throws the first steps' accelerations far
+    off. ``c = 0`` is the plain LNN.
+
     Rows whose ``∂²L_θ/∂q̇²`` is singular or ill-conditioned are counted
     (``singular_rows`` of ``seen_rows`` since :meth:`reset_counts`) and solved with a
     ridge, or refused (``on_singular="raise"``).
 
     Args:
         net: ``(B, 2k) -> (B, 1)``.
+        kinetic_prior: ``c``.
         rcond, ridge, on_singular: the guard of :func:`guarded_solve`.
         terms: how the Hessian blocks are computed from ``(lagrangian, q, q̇)``; ``None``:
             :func:`mlp_lagrangian_terms` for a ``tanh`` MLP, else :func:`lagrangian_terms`.
@@ -378,6 +387,7 @@ class LagrangianField(VelocityField):
     def __init__(
         self,
         net: nn.Module,
+        kinetic_prior: float = 0.0,
         rcond: float = 1e-6,
         ridge: float = 1e-3,
         on_singular: str = "ridge",
@@ -387,7 +397,7 @@ class LagrangianField(VelocityField):
         if on_singular not in ON_SINGULAR:
             raise ValueError(f"on_singular must be one of {ON_SINGULAR}: {on_singular!r}")
         self.net, self.rcond, self.ridge, self.on_singular = net, rcond, ridge, on_singular
-        self.terms = terms
+        self.kinetic_prior, self.terms = kinetic_prior, terms
         self.reset_counts()
 
     def reset_counts(self) -> None:
@@ -400,16 +410,24 @@ class LagrangianField(VelocityField):
         return self.singular_rows / max(self.seen_rows, 1)
 
     def lagrangian(self, q: Tensor, v: Tensor) -> Tensor:
-        """``L_θ(q, q̇)``: ``(B, k), (B, k) -> (B,)``."""
-        return self.net(torch.cat([q, v], -1))[..., 0]
+        """``L_θ(q, q̇) = ½ c|q̇|² + net(q, q̇)``: ``(B, k), (B, k) -> (B,)``."""
+        out = self.net(torch.cat([q, v], -1))[..., 0]
+        return out + 0.5 * self.kinetic_prior * (v**2).sum(-1) if self.kinetic_prior else out
 
     def hessian_terms(self, q: Tensor, v: Tensor) -> LagrangianTerms:
         """:class:`LagrangianTerms` of ``L_θ`` at ``q, q̇ (B, k)``."""
         if self.terms is not None:
             return self.terms(self.lagrangian, q, v)
-        if getattr(self.net, "activation", None) == "tanh" and hasattr(self.net, "activations"):
-            return mlp_lagrangian_terms(self.net, q, v)
-        return lagrangian_terms(self.lagrangian, q, v)
+        if not (
+            getattr(self.net, "activation", None) == "tanh" and hasattr(self.net, "activations")
+        ):
+            return lagrangian_terms(self.lagrangian, q, v)
+        t = mlp_lagrangian_terms(self.net, q, v)
+        if not self.kinetic_prior:
+            return t
+        eye = torch.eye(q.shape[-1], dtype=q.dtype, device=q.device)
+        c = self.kinetic_prior
+        return t._replace(dl_dv=t.dl_dv + c * v, hess_vv=t.hess_vv + c * eye)
 
     def acceleration(self, q: Tensor, v: Tensor) -> Tensor:
         q, v = usable(q), usable(v)
