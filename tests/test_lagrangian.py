@@ -283,6 +283,22 @@ def test_velocity_model_reads_qp_data_through_the_chart():
     assert model._batch((y, y))[0] is y
 
 
+@pytest.mark.parametrize("system", [MassSpring(0.7, 1.3), Pendulum()])
+def test_chart_momentum_rate_closed_form_equals_hessian_form(system):
+    """ṗ from the system's closed-form momentum_qv equals the general form from H's second
+    derivatives, and along the true motion is the system's own dp/dt."""
+    chart = VelocityChart(system)
+    assert chart.closed_form
+    y = torch.randn(30, 2, generator=torch.Generator().manual_seed(13), dtype=torch.float64)
+    f = system.vector_field(None, y)
+    x, rates = chart.to_velocity(y), chart.rates(y, f)
+    closed = chart.momentum_rate(y, x, rates[:, 1:])
+    chart.closed_form = False
+    torch.testing.assert_close(chart.momentum_rate(y, x, rates[:, 1:]), closed)
+    torch.testing.assert_close(closed, f[:, 1:])
+    torch.testing.assert_close(chart.to_momentum(x), y)
+
+
 def test_checkpoint_attaches_the_recorded_system():
     model = LNN(input_dim=2, hidden_dim=8)
     checkpoint = {

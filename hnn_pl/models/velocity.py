@@ -30,7 +30,11 @@ class VelocityChart:
     """
 
     def __init__(self, system: Any) -> None:
+        from hnn_pl.systems.base import HamiltonianSystem
+
         self.system, self.dof = system, int(system.dof)
+        #: whether the system gives ``momentum_qv`` in closed form (differentiable)
+        self.closed_form = type(system).momentum_qv is not HamiltonianSystem.momentum_qv
 
     def _velocity(self, y: Tensor) -> Tensor:
         return grad(lambda z: self.system.hamiltonian(z).sum())(y)[..., self.dof :]
@@ -56,8 +60,14 @@ class VelocityChart:
     def momentum_rate(self, y: Tensor, x: Tensor, a: Tensor) -> Tensor:
         """``ṗ`` of the motion with ``(q̇, q̈) = (x[..., k:], a)`` at ``y = (q, p)``: from
         ``q̈ = ∂²H/∂p∂q q̇ + ∂²H/∂p² ṗ``, ``ṗ = (∂²H/∂p²)⁻¹ (q̈ − ∂²H/∂p∂q q̇)``;
-        ``(B, 2k), (B, 2k), (B, k) -> (B, k)``, differentiable in ``a``."""
+        ``(B, 2k), (B, 2k), (B, k) -> (B, k)``, differentiable in ``a``. A system with a
+        closed-form ``momentum_qv`` gives it as one Jacobian–vector product instead,
+        ``ṗ = d/dt momentum_qv(q, q̇)`` along ``(q̇, q̈)``."""
         k = self.dof
+        if self.closed_form:
+            q, v = x.detach().double().chunk(2, -1)
+            _, p_dot = jvp(self.system.momentum_qv, (q, v), (v, a.double()))
+            return p_dot.to(a.dtype)
         y64, v = y.detach().double(), x[..., k:].detach().double()
         eye = torch.eye(2 * k, dtype=torch.float64, device=y.device)[k:]
         dirs = torch.cat([eye[:, None].expand(k, *y64.shape), torch.cat([v, 0 * v], -1)[None]])
