@@ -283,6 +283,21 @@ def test_velocity_model_reads_qp_data_through_the_chart():
     assert model._batch((y, y))[0] is y
 
 
+def test_positions_alone_start_windows_from_the_fitted_velocity():
+    """Windows of positions (width k) are not converted; a held-out window starts at its
+    first position with the velocity fitted to its first samples: (q, q̇), not a momentum."""
+    model = LNN(input_dim=2, hidden_dim=8, objective="trajectory", learned_states="sample")
+    model.attach_system(MassSpring())
+    t = torch.linspace(0, 0.2, 5, dtype=torch.float64).expand(3, 5)
+    amplitude = torch.tensor([[0.5], [1.0], [2.0]], dtype=torch.float64)
+    q = (amplitude * (3 * t - 2 * t**2))[..., None]  # q̇(0) = 3a, exact for a quadratic fit
+    y, *_ = model._batch((q, t, torch.zeros(3, 5, dtype=torch.long)))
+    assert y is q
+    start = model.window_starts(q, t)
+    torch.testing.assert_close(start[:, 0], q[:, 0, 0])
+    torch.testing.assert_close(start[:, 1], 3 * amplitude[:, 0])
+
+
 @pytest.mark.parametrize("system", [MassSpring(0.7, 1.3), Pendulum()])
 def test_chart_momentum_rate_closed_form_equals_hessian_form(system):
     """ṗ from the system's closed-form momentum_qv equals the general form from H's second
