@@ -357,3 +357,20 @@ def test_a_few_training_steps_reduce_the_loss(cls, objective):
         losses.append(float(loss.detach()))
     assert all(math.isfinite(x) for x in losses)
     assert losses[-1] < 0.7 * losses[0]
+
+
+@pytest.mark.parametrize("activation", ["tanh", "softplus"])
+@pytest.mark.parametrize("cls", [LNN, MechanicalHNN, MechanicalLNN])
+def test_fields_under_inference_mode(cls, activation):
+    """Closed-form (tanh) and torch.func (other activations) paths give the same field and
+    energy under ``torch.inference_mode`` (Lightning's evaluation) as with gradients."""
+    torch.manual_seed(14)
+    model = cls(input_dim=2, hidden_dim=8, activation=activation)
+    if hasattr(model, "attach_system"):
+        model.attach_system(Pendulum())
+    y = torch.randn(5, 2)
+    expected, energy = model(y).detach(), model.hamiltonian(y).detach()
+    with torch.inference_mode():
+        y_inf = y.clone()
+        torch.testing.assert_close(model(y_inf), expected)
+        torch.testing.assert_close(model.hamiltonian(y_inf), energy)
