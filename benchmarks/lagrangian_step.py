@@ -4,11 +4,11 @@ One step = ``zero_grad``, the model's loss, ``backward``, Adam, at width 200, ba
 2-degree-of-freedom state (``D = 4``), float32, 1 thread. Derivative objective: the HNN's
 ``MSE(J∇H_θ(y), dy/dt)``, the Lagrangian models' ``MSE(q̈_θ(q, q̇), q̈)``, the structured
 HNN's ``MSE(f_θ(y), dy/dt)``. Trajectory objective: 5-sample windows (4 RK4 steps) from
-each window's observed start, ``MSE`` of the integrated states. The LNN twice: Hessian
-blocks in closed form (the model's, for its tanh MLP), by ``torch.func``
-forward-over-reverse (any ``L``) and by double autograd. The structured models with
-``M_θ`` and ``V_θ`` as two heads of one MLP (the default) and as two MLPs.
-Targets (issue 33): LNN ≤ 3× HNN, the structured models ≤ 2× HNN.
+each window's observed start, ``MSE`` of the integrated states. The LNN (with its default
+kinetic prior ``c = 1``) three ways: Hessian blocks in closed form (the model's, for its
+tanh MLP), by ``torch.func`` forward-over-reverse (any ``L``) and by double autograd. The
+structured models with ``M_θ`` and ``V_θ`` as two heads of one MLP (the default) and as
+two MLPs. Targets (issue 33): LNN ≤ 3× HNN, the structured models ≤ 2× HNN.
 """
 
 from __future__ import annotations
@@ -43,11 +43,11 @@ def make_field(kind: str) -> torch.nn.Module:
     if kind == "HNN":
         return HamiltonianField(MLP(d, 1, WIDTH))
     if kind == "LNN":
-        return LagrangianField(MLP(d, 1, WIDTH))
+        return LagrangianField(MLP(d, 1, WIDTH), kinetic_prior=1.0)
     if kind == "LNN (torch.func)":
-        return LagrangianField(MLP(d, 1, WIDTH), terms=lagrangian_terms)
+        return LagrangianField(MLP(d, 1, WIDTH), 1.0, terms=lagrangian_terms)
     if kind == "LNN (double autograd)":
-        return LagrangianField(MLP(d, 1, WIDTH), terms=lagrangian_terms_autograd)
+        return LagrangianField(MLP(d, 1, WIDTH), 1.0, terms=lagrangian_terms_autograd)
     nets = MechanicalNets(DOF, WIDTH, 2, "tanh", shared="two MLPs" not in kind)
     if kind.startswith("MechanicalHNN"):
         return MechanicalHamiltonianField(nets)
