@@ -374,3 +374,18 @@ def test_fields_under_inference_mode(cls, activation):
         y_inf = y.clone()
         torch.testing.assert_close(model(y_inf), expected)
         torch.testing.assert_close(model.hamiltonian(y_inf), energy)
+
+
+def test_a_full_batch_is_converted_once():
+    """The same tensors are converted once; new or modified ones anew."""
+    system = MassSpring()
+    model = LNN(input_dim=2, hidden_dim=8)
+    model.attach_system(system)
+    y = torch.randn(10, 2, dtype=torch.float64)
+    dydt = system.vector_field(None, y)
+    first = model._batch((y, dydt))
+    assert model._batch((y, dydt)) is first
+    assert model._batch((y.clone(), dydt)) is not first
+    y.mul_(2.0)
+    again = model._batch((y, dydt))
+    torch.testing.assert_close(again[0][:, 0], y[:, 0])
