@@ -152,13 +152,3 @@ def test_readme_runs_in_a_fresh_directory(tmp_path):
     assert {"rollouts.pt", "bump.png", "config_test.yaml"} <= {p.name for p in run.glob("*/*")}
     assert (tmp_path / "lightning_logs" / "springs_hnn" / "version_0").is_dir()
     assert (tmp_path / "my_results" / "RESULTS.json").is_file()
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize(
-    "page",
-    [p.name for p in guide_pages() if any(lang in RUNNABLE for lang, _ in blocks(p))],
-)
-def test_guide_page_runs_in_a_fresh_directory(page, tmp_path):
-    (tmp_path / "examples").symlink_to(ROOT / "examples")
-    run_blocks(ROOT / "docs" / page, tmp_path)
