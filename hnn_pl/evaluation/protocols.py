@@ -57,7 +57,7 @@ class Protocol(_Fields):
             probe (else the probe reads the integrated latents).
         probe_encoder: pixel: ``"own"``, or ``"hnn"``: the probe is fitted on, and the
             decoded frames re-encoded by, the encoder of an HNN passed to
-            :func:`hnn_pl.rollouts.run` (``probe_model``; the model's own without one).
+            :meth:`Protocol.run` (``probe_model``; the model's own without one).
         observer_samples: state models: infer each start from the first
             ``observer_samples`` observed (noisy) positions of its held-out trajectory
             (:func:`~hnn_pl.evaluation.observer.observe`) instead of taking the true
