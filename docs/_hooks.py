@@ -27,7 +27,10 @@ _DOWN = re.compile(r"\]\(docs/")
 
 def on_files(files: Files, config) -> Files:
     root = Path(config.config_file_path).parent
-    names = [*ROOT_PAGES, *(f"STABILITY/{p.name}" for p in sorted((root / "STABILITY").glob("*.png")))]
+    names = [
+        *ROOT_PAGES,
+        *(f"STABILITY/{p.name}" for p in sorted((root / "STABILITY").glob("*.png"))),
+    ]
     for name in names:
         if (root / name).is_file():
             files.append(File(name, str(root), config.site_dir, config.use_directory_urls))
