@@ -19,8 +19,9 @@ import numpy as np
 import torch
 
 from hnn_pl import HNN, Protocol, RecordingData
-from hnn_pl.commands.cli import QUIET_TRAINER, quiet_lightning
+from hnn_pl.commands.cli import QUIET_TRAINER
 from hnn_pl.evaluation import evaluate
+from hnn_pl.loggers import quiet_lines
 from hnn_pl.systems import MassSpring
 
 
@@ -43,7 +44,7 @@ def main(steps: int = 200, folder: str | None = None) -> dict[str, float]:
     """Write the recording into ``folder`` (default: a new temporary folder), train for
     ``steps`` steps and score the held-out rollouts: the metrics of
     :func:`hnn_pl.evaluation.evaluate`."""
-    quiet_lightning()
+    quiet_lines()
     torch.set_num_threads(1)
     L.seed_everything(0, verbose=False)
     root = Path(folder or tempfile.mkdtemp(prefix="recording-"))
