@@ -4,18 +4,23 @@
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
-# The CPU build of torch: without the pin pip pulls a multi-GB CUDA build.
+# The CPU build of torch, pinned: on Linux PyPI's default build is the multi-GB CUDA one,
+# so it comes from PyTorch's CPU index there (macOS's default build is the CPU one). One
+# retry: where that index cannot be reached (a machine with a PyPI mirror only) pip falls
+# back to its configured sources in seconds, not minutes.
 TORCH ?= torch==2.13.0
+TORCH_INDEX ?= $(if $(filter Linux,$(shell uname -s)),--index-url https://download.pytorch.org/whl/cpu --retries 1,)
 CONFIG ?= spring_fast.yaml
 STAMP := $(VENV)/.installed
 
-.PHONY: venv fit test lint bench reproduce clean
+.PHONY: venv fit test docs lint bench reproduce clean
 
 venv: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet "$(TORCH)" -e ".[dev]"
+	$(BIN)/pip install --quiet "$(TORCH)" $(TORCH_INDEX)
+	$(BIN)/pip install --quiet -e ".[dev,docs]"
 	touch $(STAMP)
 
 fit: $(STAMP)
@@ -23,6 +28,10 @@ fit: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# the documentation site (mkdocs.yml: docs/, the API from the docstrings, the results)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --site-dir site
 
 lint: $(STAMP)
 	$(BIN)/ruff format --check hnn_pl tests benchmarks examples
@@ -35,4 +44,4 @@ reproduce: $(STAMP)
 	$(BIN)/python -m hnn_pl reproduce --out RESULTS.md
 
 clean:
-	rm -rf $(VENV) lightning_logs .pytest_cache
+	rm -rf $(VENV) lightning_logs .pytest_cache site

@@ -144,8 +144,7 @@ def recording_read(quick: bool) -> str:
         "`tracemalloc`'s peak. The sample lines are parsed by `numpy.loadtxt`; the line reader "
         "(regular expressions, Python's `int`, `float`, `Decimal`) reads only what `loadtxt` "
         "refuses: "
-        "float-notation ids, or a fault it then names (issue 31: 6.7 s and about 1 GB "
-        "before).\n\n"
+        "float-notation ids, or a fault it then names.\n\n"
         + table(
             "file | rows | size (MB) | read + check (s) | peak RSS growth (MB) | traced peak (MB)",
             rows,

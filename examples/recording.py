@@ -1,14 +1,18 @@
-"""Learn from your own recording: ``python examples/recording.py`` (seconds, one core).
+"""Learn from your own recording: ``python examples/recording.py [STEPS] [DIR]`` (seconds,
+one core).
 
-Writes ``springs.csv`` (8 noisy mass-spring orbits, each sampled at its own uneven
-times, no derivatives), trains an HNN on windows of its states and rolls it out from
-the first sample of each held-out orbit. Prints the held-out errors beside those of
-the true system's own rollout from the same noisy starts (the floor the noise sets).
+Writes ``DIR/springs.csv`` (default: a new temporary folder): 8 noisy mass-spring orbits,
+each sampled at its own uneven times, no derivatives. Trains an HNN on windows of its
+states and rolls it out from the first sample of each held-out orbit. Prints the held-out
+errors beside those of the true system's own rollout from the same noisy starts (the floor
+the noise sets).
 """
 
 from __future__ import annotations
 
 import sys
+import tempfile
+from pathlib import Path
 
 import lightning as L
 import numpy as np
@@ -17,6 +21,7 @@ import torch
 from hnn_pl import HNN, Protocol, RecordingData
 from hnn_pl.commands.cli import QUIET_TRAINER
 from hnn_pl.evaluation import evaluate
+from hnn_pl.loggers import quiet_lines
 from hnn_pl.systems import MassSpring
 
 
@@ -35,9 +40,16 @@ def write_recording(path: str, n: int = 8, seed: int = 0) -> None:
     )
 
 
-def main(steps: int = 200, path: str = "springs.csv") -> dict[str, float]:
+def main(steps: int = 200, folder: str | None = None) -> dict[str, float]:
+    """Write the recording into ``folder`` (default: a new temporary folder), train for
+    ``steps`` steps and score the held-out rollouts: the metrics of
+    :func:`hnn_pl.evaluation.evaluate`."""
+    quiet_lines()
     torch.set_num_threads(1)
     L.seed_everything(0, verbose=False)
+    root = Path(folder or tempfile.mkdtemp(prefix="recording-"))
+    root.mkdir(parents=True, exist_ok=True)
+    path = str(root / "springs.csv")
     write_recording(path)
     dm = RecordingData(path, system=MassSpring(), test_fraction=0.25, window=4)
     model = HNN(input_dim=2, hidden_dim=64, lr=1e-2, schedule="onecycle", objective="trajectory")
@@ -48,7 +60,7 @@ def main(steps: int = 200, path: str = "springs.csv") -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    m = main(int(sys.argv[1]) if len(sys.argv) > 1 else 200)
+    m = main(int(sys.argv[1]) if len(sys.argv) > 1 else 200, *sys.argv[2:3])
     print(f"held-out rollouts: state MSE {m['state_mse']:.2e}, energy MSE {m['energy_mse']:.2e}")
     print(
         f"true system from the same starts: state MSE {m['floor_integrator_state_mse']:.2e}, "

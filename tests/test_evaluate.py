@@ -63,7 +63,7 @@ def test_reference_protocol_scores_the_true_field_near_zero(task, spring_dm, tmp
 
 def test_spring_time_stretch_compounds_per_trial():
     """Trial k (1…15) of the spring is read at 1.09**(k+1) · t: the reference's in-place
-    bug, whose last horizon is t ≈ 79 (SPEC)."""
+    bug, whose last horizon is t ≈ 79."""
     system = MassSpring()
     p = evaluation.task_protocol("spring", "reference")
     y0 = _box_starts(p, 2, seed=0)

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
 from hnn_pl.commands import reproduce
 from hnn_pl.commands.cli_errors import CLIError
+from hnn_pl.experiments.results import main as render_main
 from hnn_pl.experiments.summary import summarize
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _run(tmp_path, monkeypatch, extra=()):
@@ -96,7 +100,7 @@ def test_merge_keeps_earlier_runs(tmp_path, monkeypatch):
         ("real_pendulum", "hnn"),
         ("spring", "hnn"),
     ]
-    assert "Merged with the runs of an earlier call" in (tmp_path / "R.md").read_text()
+    assert "come from 2 calls of `reproduce --merge`" in (tmp_path / "R.md").read_text()
     assert len(data["meta"]["earlier_calls"]) == 1
     assert reproduce.main(["--tasks", "real_pendulum", "--merge", *common]) == 0
     data = json.loads((tmp_path / "R.json").read_text())
@@ -187,3 +191,31 @@ def test_no_tta_skips_the_checks_and_says_so(tmp_path, monkeypatch):
     assert summary["tta"] == "2.5 (2.5) s, 1/1"
     (summary,) = summarize([run, {**timed, "tta": None}])
     assert summary["tta"] == "not reached (0/1)"
+
+
+@pytest.mark.parametrize(
+    "name", ["RESULTS.md", "RESULTS_fast.md", "RESULTS_traj.md", "RESULTS_positions.md"]
+)
+def test_the_committed_pages_are_their_records_rendered(name, tmp_path, capsys):
+    """``python -m hnn_pl.experiments.results X.json`` gives the committed page exactly:
+    the pages are generated, never edited by hand."""
+    out = tmp_path / name
+    assert render_main([str(ROOT / name.replace(".md", ".json")), "--out", str(out)]) == 0
+    assert capsys.readouterr().out == f"wrote {out}\n"
+    assert out.read_text() == (ROOT / name).read_text()
+
+
+def test_a_seed_is_found_beside_the_medians():
+    """RESULTS_fast.md's spring baseline: median 0.165 over 10 seeds, seed 0's own 2.15
+    in its per-seed table."""
+    page = (ROOT / "RESULTS_fast.md").read_text()
+    assert "| spring | baseline | 10 |" in page and "1.65e-01 (2.15e+00)" in page
+    per_seed = page.split("\n## Per seed")[1].split("\n## ")[0]
+    rows = [line for line in per_seed.splitlines() if line.startswith("| spring | baseline |")]
+    assert len(rows) == 10 and rows[0].split(" | ")[2:6] == [
+        "0",
+        "3.78e-02",
+        "3.76e-02",
+        "2.15e+00",
+    ]
+    assert "Merged with" not in page

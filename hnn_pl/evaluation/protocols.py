@@ -4,7 +4,7 @@ Rollout`` (and ``prepare(dm)``: the truth made once, a model rolled out often).
 A :class:`Protocol` rolls a model out from held-out starts with :func:`hnn_pl.odeint`
 through the model's view (the rollout callback, ``predict``, the clean evaluation; the
 pixel task's reference); a :class:`ReferenceProtocol` is the published procedure of a
-state task with every quirk a named field (SPEC "Known quirks"), scipy's RK45 on the
+state task with each of the reference code's quirks a named field, scipy's RK45 on the
 flattened batch. Each task names its protocols as data (:mod:`hnn_pl.tasks`);
 :func:`task_protocol` builds them, and a config overrides fields, never restates them.
 """
@@ -57,7 +57,7 @@ class Protocol(_Fields):
             probe (else the probe reads the integrated latents).
         probe_encoder: pixel: ``"own"``, or ``"hnn"``: the probe is fitted on, and the
             decoded frames re-encoded by, the encoder of an HNN passed to
-            :func:`hnn_pl.rollouts.run` (``probe_model``; the model's own without one).
+            :meth:`Protocol.run` (``probe_model``; the model's own without one).
         observer_samples: state models: infer each start from the first
             ``observer_samples`` observed (noisy) positions of its held-out trajectory
             (:func:`~hnn_pl.evaluation.observer.observe`) instead of taking the true

@@ -16,7 +16,7 @@ RECIPES = ("paper", "fast", "traj")
 
 
 class Published(NamedTuple):
-    """The reference README's numbers of one model on one task (SPEC)."""
+    """The reference README's numbers of one model on one task."""
 
     train_loss: float
     test_loss: float

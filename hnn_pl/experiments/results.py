@@ -1,9 +1,16 @@
 """Render, the last step of ``reproduce``: ``RESULTS.md`` from the records and their
-summary (:mod:`hnn_pl.experiments.summary`), ours beside the paper's numbers."""
+summary (:mod:`hnn_pl.experiments.summary`), ours beside the paper's numbers.
+
+``python -m hnn_pl.experiments.results RESULTS_fast.json [--out PAGE.md]`` renders a
+page again from its JSON records (no training): ``reproduce``'s pages and
+``reproduce --recipe positions``'s alike."""
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 from hnn_pl.experiments import paper
@@ -89,11 +96,20 @@ def _header(meta: dict) -> list[str]:
         "(`hnn_pl.tasks`, `paper_motion`; runs made before a task had one: energy "
         "only, see the motion table's last column), median (worst) over the seeds, and "
         "how many seeds reached it.",
-        *(
-            f"Merged with the runs of an earlier call: {c['command']} on {c['date']}, "
-            f"{c['total_s']:.0f} s."
-            for c in meta.get("earlier_calls", [])
-        ),
+        *_calls(meta),
+    ]
+
+
+def _calls(meta: dict) -> list[str]:
+    """One sentence on the earlier calls whose runs this page merges (their commands,
+    dates and times stay in the JSON file's ``meta.earlier_calls``)."""
+    n = len(meta.get("earlier_calls", []))
+    if not n:
+        return []
+    return [
+        "",
+        f"The runs come from {n + 1} calls of `reproduce --merge`; each call's command, date "
+        "and wall time are in the JSON records beside this page (`meta.earlier_calls`).",
     ]
 
 
@@ -194,22 +210,54 @@ def _ratios(rows: list[dict]) -> list[str]:
     return lines
 
 
+#: the per-seed tables' columns: header, how a record gives the number (``None``: not
+#: measured), and how it reads
+PER_SEED: tuple[tuple[str, Callable[[dict], float | None], str], ...] = (
+    ("train loss", lambda r: r["train_loss"], ".2e"),
+    ("test loss", lambda r: r["test_loss"], ".2e"),
+    ("energy MSE, reference", lambda r: r["reference"]["energy_mse"], ".2e"),
+    ("energy MSE, clean", lambda r: r["clean"]["energy_mse"], ".2e"),
+    ("state MSE, clean", lambda r: r["clean"].get("state_mse"), ".2e"),
+    ("field error", lambda r: r["clean"].get("field_error"), ".2e"),
+    ("pixel MSE", lambda r: r["clean"].get("pixel_mse"), ".2e"),
+    ("valid time", lambda r: r["clean"].get("valid_time"), ".3g"),
+    ("train s", lambda r: r["train_s"], ".1f"),
+)
+
+
 def _per_seed(records: list[dict], rows: list[dict]) -> list[str]:
-    seeds = sorted({r["seed"] for r in records})
+    """Per task, a collapsible table: one line per model and seed with every number of
+    :data:`PER_SEED` the task's runs report (failed runs: ``failed``)."""
     lines = _section(
-        "Energy MSE per seed (reference protocol / clean protocol)",
-        "| task | model | " + " | ".join(f"seed {s}" for s in seeds) + " |",
-        "|---|---|" + "---|" * len(seeds),
+        "Per seed",
+        "Every run's own numbers, so that one seed's run can be found beside the medians "
+        "above (each seed draws its own data; a single seed can sit far from the median).",
     )
-    ok = {(r["task"], r["model"], r["seed"]): r for r in records if "error" not in r}
-    for row in rows:
-        runs = [ok.get((row["task"], row["model"], seed)) for seed in seeds]
-        cells = [
-            f"{r['reference']['energy_mse']:.2e} / {r['clean']['energy_mse']:.2e}" if r else "—"
-            for r in runs
+    for task in dict.fromkeys(row["task"] for row in rows):
+        runs = sorted(
+            (r for r in records if r["task"] == task),
+            key=lambda r: ([row["model"] for row in rows].index(r["model"]), r["seed"]),
+        )
+        ok = [r for r in runs if "error" not in r]
+        columns = [c for c in PER_SEED if any(c[1](r) is not None for r in ok)]
+        lines += [
+            "",
+            '<details markdown="1">',
+            f"<summary>{task}: {len(runs)} runs</summary>",
+            "",
+            "| task | model | seed | " + " | ".join(c[0] for c in columns) + " |",
+            "|---" * (3 + len(columns)) + "|",
         ]
-        lines.append(f"| {row['task']} | {row['model']} | " + " | ".join(cells) + " |")
+        for r in runs:
+            cells = ["failed"] * len(columns) if "error" in r else [_cell(r, c) for c in columns]
+            lines.append(f"| {task} | {r['model']} | {r['seed']} | " + " | ".join(cells) + " |")
+        lines += ["", "</details>"]
     return lines
+
+
+def _cell(record: dict, column: tuple[str, Callable[[dict], float | None], str]) -> str:
+    value = column[1](record)
+    return "—" if value is None or math.isnan(value) else format(value, column[2])
 
 
 def _protocols(records: list[dict]) -> list[str]:
@@ -259,3 +307,42 @@ def _independent(rows: list[dict]) -> list[str]:
         "|---|---|---|",
     )
     return lines + [f"| {r['task']} | {r['model']} | {fmt(*r['indep_energy'])} |" for r in indep]
+
+
+def render_file(json_path: Path, out: Path | None = None) -> Path:
+    """The page of a JSON record file written by ``reproduce`` (``{"meta", "runs"}``)
+    rendered again, to ``out`` (default: the JSON file's ``.md`` sibling); its path.
+    ``reproduce --recipe positions``'s records (rows with a ``row``) render as its page."""
+    from hnn_pl.safe_io import write_atomic
+
+    data = json.loads(json_path.read_text())
+    records, meta = data["runs"], data["meta"]
+    if records and "row" in records[0]:
+        from hnn_pl.experiments import positions
+
+        page = positions.render(positions.summarise(records), records, meta)
+    else:
+        page = render(records, meta)
+    out = out or json_path.with_suffix(".md")
+    write_atomic(out, page.encode())
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hnn_pl.experiments.results FILE.json … [--out PAGE.md]``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m hnn_pl.experiments.results",
+        description="Render RESULTS pages again from their JSON records (no training).",
+    )
+    parser.add_argument("json", type=Path, nargs="+", help="records written by reproduce")
+    parser.add_argument("--out", type=Path, help="the page (one JSON file only; default: .md)")
+    args = parser.parse_args(argv)
+    if args.out and len(args.json) > 1:
+        parser.error("--out takes one JSON file")
+    for path in args.json:
+        print(f"wrote {render_file(path, args.out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -14,7 +14,7 @@ Hamiltonian (``G`` and the masses ``m_i`` configurable, defaults 1 as the refere
     H(q, p) = Σ_i |p_i|² / (2 m_i)  −  Σ_{i<j} G m_i m_j / |q_i − q_j|
 
 Ground-truth tolerances: the reference's scipy RK45 at ``rtol = 1e-9`` and the default
-``atol = 1e-6`` is only ~1e-4 accurate for states of order one (SPEC quirk 5); we keep
+``atol = 1e-6`` is only ~1e-4 accurate for states of order one; we keep
 the base class's ``rtol = atol = 1e-10``. Our dopri5 (the Dormand-Prince pair and RMS
 norm of scipy's RK45) against a run at ``1e-13`` on the paper's data sets (seed 0; 1000
 two-body orbits, t ∈ [0, 20], 50 points; 5000 three-body orbits, t ∈ [0, 5], 20 points):

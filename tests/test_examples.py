@@ -1,0 +1,83 @@
+"""Every script in examples/ imports and runs as a user runs it (small sizes): it writes
+only where it is told or into a temporary folder, and prints no third-party advert or
+deprecation notice."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+#: each example's command-line arguments for a quick run (``{out}``: a temporary folder)
+QUICK: dict[str, list[str]] = {
+    "double_well.py": [],
+    "recording.py": ["20", "{out}"],
+    "camera.py": ["20", "{out}"],
+    "figures.py": ["--steps", "5", "--out", "{out}"],
+    "friction.py": ["--steps", "3", "--seeds", "1", "--out", "{out}"],
+}
+
+#: what each quick run leaves in its folder
+WRITES: dict[str, set[str]] = {
+    "double_well.py": set(),
+    "recording.py": {"springs.csv"},
+    "camera.py": {"angles.csv", "camera.yaml", "lightning_logs"},
+    "figures.py": {"bump.png", "bump.pt", "double_well.png"},
+    "friction.py": {"friction_table.md", "friction.png"},
+}
+
+#: what no example may print (Lightning's cloud advert, deprecation notices)
+NOISE = ("litlogger", "LitLogger", "💡", "deprecated", "Deprecat")
+
+
+def test_every_example_is_listed():
+    assert sorted(p.name for p in EXAMPLES.glob("*.py")) == sorted(QUICK) == sorted(WRITES)
+
+
+@pytest.mark.parametrize("name", sorted(QUICK))
+def test_example_imports(name):
+    spec = importlib.util.spec_from_file_location(f"example_{name[:-3]}", EXAMPLES / name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert name == "double_well.py" or callable(module.main)
+
+
+def test_the_double_well_is_a_system_from_h_alone():
+    sys.path.insert(0, str(EXAMPLES))
+    try:
+        from double_well import DoubleWell
+    finally:
+        sys.path.remove(str(EXAMPLES))
+    import torch
+
+    y = torch.tensor([[0.5, 0.3]], dtype=torch.float64)
+    # dq/dt = ∂H/∂p = p, dp/dt = −∂H/∂q = −q(q² − 1)
+    expected = torch.tensor([[0.3, -0.5 * (0.25 - 1)]], dtype=torch.float64)
+    torch.testing.assert_close(DoubleWell().vector_field(0.0, y), expected)
+
+
+@pytest.mark.parametrize("name", sorted(QUICK))
+def test_example_runs_as_a_script(name, tmp_path):
+    out, cwd = tmp_path / "out", tmp_path / "cwd"
+    cwd.mkdir()
+    args = [a.format(out=out) for a in QUICK[name]]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    printed = done.stdout + done.stderr
+    assert not [word for word in NOISE if word in printed], printed
+    assert list(cwd.iterdir()) == [], "an example wrote into the directory it was run from"
+    assert {p.name for p in out.iterdir()} == WRITES[name] if WRITES[name] else not out.exists()
