@@ -22,6 +22,15 @@ ON_SINGULAR = ("ridge", "raise")
 Lagrangian = Callable[[Tensor, Tensor], Tensor]
 
 
+def spd_solve(m: Tensor, b: Tensor) -> Tensor:
+    """``m⁻¹ b`` for symmetric positive definite ``m (…, k, k)`` and ``b (…, k)`` by a
+    Cholesky solve; a row whose ``m`` is not positive definite (non-finite entries) gives
+    ``NaN`` rather than an exception, so the integrator reports it as a diverged row."""
+    factor, info = torch.linalg.cholesky_ex(m)
+    x = torch.cholesky_solve(b[..., None], factor)[..., 0]
+    return torch.where((info == 0)[..., None], x, torch.full_like(x, float("nan")))
+
+
 class Accelerations(NamedTuple):
     """``q̈ (B, k)`` and ``singular (B,)``: the rows whose velocity Hessian was singular or
     ill-conditioned (their ``q̈`` is the ridge-regularised solve)."""
@@ -197,7 +206,7 @@ def mechanical_hamiltonian_field(
     ``q ↦ M(q) u`` (no derivative of the factorisation). ``mass: (B, k) -> (B, k, k)``
     symmetric positive definite, ``potential: (B, k) -> (B,)``."""
     m = mass(q)
-    u = torch.cholesky_solve(p[..., None], torch.linalg.cholesky(m))[..., 0]
+    u = spd_solve(m, p)
     _, pull = vjp(lambda a: mass_action(mass, a, u), q)
     (dt_dq,) = pull(0.5 * u)
     return torch.cat([u, dt_dq - potential_grad(potential, q)], -1)
@@ -213,7 +222,7 @@ def mechanical_acceleration(mass: MassMatrix, potential: Potential, q: Tensor, v
     (half_grad,) = pull(0.5 * v)
     _, coriolis = jvp(lambda a: mass_action(mass, a, v), (q,), (v,))
     rhs = half_grad - coriolis - potential_grad(potential, q)
-    return torch.cholesky_solve(rhs[..., None], torch.linalg.cholesky(m))[..., 0]
+    return spd_solve(m, rhs)
 
 
 class CholeskyMass(nn.Module):
@@ -527,7 +536,7 @@ class MechanicalHamiltonianField(nn.Module):
         q, p = y.chunk(2, -1)
         raw, potential = self.nets.outputs(q)
         m = self.nets.cholesky(raw)
-        u = torch.cholesky_solve(p[..., None], torch.linalg.cholesky(m))[..., 0]
+        u = spd_solve(m, p)
         return 0.5 * (p * u).sum(-1) + potential
 
     def forward(self, y: Tensor) -> Tensor:
@@ -540,7 +549,7 @@ class MechanicalHamiltonianField(nn.Module):
         if not self.nets.closed_form:
             return mechanical_hamiltonian_field(self.nets.mass, self.nets.potential, q, p)
         lin = self.nets.linearize(q)
-        u = torch.cholesky_solve(p[..., None], torch.linalg.cholesky(lin.mass))[..., 0]
+        u = spd_solve(lin.mass, p)
         return torch.cat([u, lin.force(u)], -1)
 
 
@@ -564,7 +573,7 @@ class MechanicalLagrangianField(VelocityField):
             return mechanical_acceleration(self.nets.mass, self.nets.potential, q, v)
         lin = self.nets.linearize(q)
         rhs = lin.force(v) - lin.action_jvp(v, v)
-        return torch.cholesky_solve(rhs[..., None], torch.linalg.cholesky(lin.mass))[..., 0]
+        return spd_solve(lin.mass, rhs)
 
     def energy(self, x: Tensor) -> Tensor:
         q, v = x.chunk(2, -1)
