@@ -41,8 +41,11 @@ class Task:
         title: a human name.
         kind: ``"state"`` (models of ``dy/dt`` on states) or ``"pixel"`` (an
             autoencoder with latent dynamics; its latent field has no true field).
-        reference: the published energy-MSE procedure (scipy's for state tasks; a
-            latent rollout of one trajectory for the pixel task).
+        reference: the published procedure (the energy MSE by scipy for the HNN paper's
+            state tasks; a latent rollout of one trajectory for the pixel task; for the
+            chain pendulums a rollout of the model in its dtype at the constrained-HNN
+            code's tolerance 1e-7 over the test set's 3 s, which
+            :meth:`~hnn_pl.data.chain_pendulum.ChainPendulumData.rollout_errors` scores).
         clean: the protocol every model is scored with the same way, and the
             rollout callback's default.
         independent: the true-energy evaluation (the published procedure without its
@@ -116,6 +119,16 @@ TASKS: dict[str, Task] = {
                 probe_encoder="hnn",
             ),
             rollout(t_end=None, n_points=200),
+        ),
+        *(
+            Task(
+                f"chain{n}",
+                f"{n}-link chain pendulum (constrained-HNN benchmark)",
+                "state",
+                rollout(t_end=None, n_points=None, rtol=1e-7, atol=1e-9, dtype="model"),
+                rollout(t_end=None, n_points=None),
+            )
+            for n in (2, 3)
         ),
     )
 }

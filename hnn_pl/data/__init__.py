@@ -1,6 +1,7 @@
 """LightningDataModules: one per task, shared by every model of that task."""
 
 from hnn_pl.data.base import TensorBatches, TrajectoryDataModule
+from hnn_pl.data.chain_pendulum import ChainPendulumData
 from hnn_pl.data.pixel import PixelPendulumData
 from hnn_pl.data.real_pendulum import RealPendulumData
 from hnn_pl.data.recording import RecordingData, load_recording
@@ -14,4 +15,5 @@ __all__ = [
     "RecordingData",
     "load_recording",
     "PixelPendulumData",
+    "ChainPendulumData",
 ]

@@ -376,10 +376,15 @@ class DynamicsModel(RecipeModel):
         self.traj_first = first.nonzero().flatten().to(self.device)
         self.obs_t_train = obs_t.to(self.device, self.dtype)
         if self.states is None:
-            full = with_momenta(obs_y, obs_t, obs_traj, self.hparams.input_dim)
+            full = self.initial_states(obs_y, obs_t, obs_traj)
             init = full if self.learned_states == "sample" else full[self.traj_first]
             self.states = nn.Parameter(init.detach().clone().to(self.device, self.dtype))
         self.states_data = data
+
+    def initial_states(self, obs_y: Tensor, obs_t: Tensor, obs_traj: Tensor) -> Tensor:
+        """The observed samples as the field's states ``(S, 2k)``, where learned states
+        start: :func:`with_momenta` (a model on other coordinates converts them)."""
+        return with_momenta(obs_y, obs_t, obs_traj, self.hparams.input_dim)
 
     def check_data(self, datamodule: Any, stage: str = "fit") -> None:
         """Refuse, in one line, data this model cannot use as configured (before any run

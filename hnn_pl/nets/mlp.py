@@ -77,3 +77,30 @@ class MLP(nn.Module):
         for layer, h_prev in zip(reversed(self.hidden[1:]), reversed(hs[:-1])):
             g = (g @ layer.weight) * (1 - h_prev**2)
         return value, g @ self.hidden[0].weight
+
+    def activations(self, x: Tensor) -> list[Tensor]:
+        """The hidden layers' outputs ``[h₁, …, h_L]``, each ``(B, h)``: what
+        :meth:`input_vjp` and :meth:`input_jvp` reuse (``tanh`` only)."""
+        if self.activation != "tanh":
+            raise NotImplementedError("closed-form input derivatives are implemented for tanh only")
+        hs, h = [], x
+        for layer in self.hidden:
+            h = torch.tanh(layer(h))
+            hs.append(h)
+        return hs
+
+    def input_vjp(self, hs: list[Tensor], cotangent: Tensor) -> Tensor:
+        """``(∂f/∂x)ᵀ c`` at the input whose :meth:`activations` are ``hs``, in closed form
+        (``tanh``): ``c (B, out) -> (B, d)``."""
+        g = cotangent @ self.out.weight
+        for i in range(len(self.hidden) - 1, -1, -1):
+            g = (g * (1 - hs[i] ** 2)) @ self.hidden[i].weight
+        return g
+
+    def input_jvp(self, hs: list[Tensor], tangent: Tensor) -> Tensor:
+        """``(∂f/∂x) u`` at the input whose :meth:`activations` are ``hs``, in closed form
+        (``tanh``): ``u (B, d) -> (B, out)``."""
+        t = tangent
+        for layer, h in zip(self.hidden, hs):
+            t = (t @ layer.weight.T) * (1 - h**2)
+        return t @ self.out.weight.T

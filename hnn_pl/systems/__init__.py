@@ -1,6 +1,7 @@
 """Physical systems: one per file, each with its Hamiltonian in the docstring."""
 
 from hnn_pl.systems.base import HamiltonianSystem, symplectic_gradient, system_spec
+from hnn_pl.systems.chain_pendulum import ChainPendulum, DoublePendulum, VelocityChart
 from hnn_pl.systems.mass_spring import MassSpring
 from hnn_pl.systems.nbody import NBody
 from hnn_pl.systems.pendulum import Pendulum
@@ -16,4 +17,7 @@ __all__ = [
     "NBody",
     "TwoBody",
     "ThreeBody",
+    "ChainPendulum",
+    "DoublePendulum",
+    "VelocityChart",
 ]

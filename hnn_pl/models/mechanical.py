@@ -1,0 +1,109 @@
+"""Mass-matrix-structured models: ``H = ½ pᵀ M_θ(q)⁻¹ p + V_θ(q)`` and its Lagrangian twin."""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from hnn_pl.models.base import DynamicsModel
+from hnn_pl.models.recipe import is_weight
+from hnn_pl.models.velocity import VelocityModel
+from hnn_pl.nets.lagrangian import (
+    MechanicalHamiltonianField,
+    MechanicalLagrangianField,
+    MechanicalNets,
+)
+
+
+def _nets(model: DynamicsModel, input_dim: int, hidden_dim: int, n_hidden: int, activation: str):
+    return MechanicalNets(
+        input_dim // 2, hidden_dim, n_hidden, activation, model.mass_eps, model.shared_trunk
+    )
+
+
+def _check(mass_eps: float, shared_trunk: bool) -> None:
+    if not (is_weight(mass_eps) and mass_eps > 0):
+        raise ValueError(f"mass_eps must be finite and > 0: {mass_eps}")
+    if not isinstance(shared_trunk, bool):
+        raise ValueError(f"shared_trunk must be true or false: {shared_trunk!r}")
+
+
+class MechanicalHNN(DynamicsModel):
+    """``H_θ = ½ pᵀ M_θ(q)⁻¹ p + V_θ(q)`` on ``y = (q, p)``: ``M_θ(q) = L Lᵀ + εI`` with
+    ``L`` lower triangular from the ``k(k+1)/2`` outputs of an ``MLP`` of ``q`` (diagonal
+    through ``softplus``), symmetric positive definite by construction; ``V_θ`` one more
+    output (``shared_trunk``) or its own ``MLP(k → h → h → 1)``.
+    ``dy/dt = (M_θ⁻¹p, ½ ∂(uᵀM_θu)/∂q − ∇V_θ)`` with ``u = M_θ⁻¹p`` by a Cholesky solve
+    (:func:`~hnn_pl.nets.lagrangian.mechanical_hamiltonian_field`). The structure of a
+    mechanical system in any coordinates (angles included), as DeLaN's in Hamiltonian form.
+
+    Args:
+        mass_eps: ``ε``, the floor of ``M_θ``'s eigenvalues.
+        shared_trunk: ``M_θ``'s factor and ``V_θ`` as two heads of one MLP
+            ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
+        **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
+    """
+
+    def __init__(self, mass_eps: float = 1e-3, shared_trunk: bool = True, **kwargs) -> None:
+        _check(mass_eps, shared_trunk)
+        self.mass_eps, self.shared_trunk = mass_eps, shared_trunk
+        super().__init__(**kwargs)
+
+    def build_field(
+        self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
+    ) -> MechanicalHamiltonianField:
+        nets = _nets(self, input_dim, hidden_dim, n_hidden, activation)
+        return MechanicalHamiltonianField(nets)
+
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        """``M_θ(q)``: ``(B, k) -> (B, k, k)``."""
+        return self.field.nets.mass(q)
+
+    def potential(self, q: Tensor) -> Tensor:
+        """``V_θ(q)``: ``(B, k) -> (B,)``."""
+        return self.field.nets.potential(q)
+
+    def hamiltonian(self, y: Tensor) -> Tensor:
+        """``H_θ(y)``: ``(B, 2k) -> (B,)``."""
+        return self.field.hamiltonian(y)
+
+
+class MechanicalLNN(VelocityModel):
+    """``L_θ = ½ q̇ᵀ M_θ(q) q̇ − V_θ(q)`` on ``x = (q, q̇)`` (DeLaN, Lutter et al. 2019): the
+    Lagrangian twin of :class:`MechanicalHNN` (the same ``M_θ``, ``V_θ``), accelerations by
+    a Cholesky solve with ``M_θ`` (:func:`~hnn_pl.nets.lagrangian.mechanical_acceleration`;
+    no Hessian, never singular); energy ``½ q̇ᵀM_θq̇ + V_θ``. Data and objectives:
+    :class:`~hnn_pl.models.velocity.VelocityModel`.
+
+    Args:
+        mass_eps: ``ε``, the floor of ``M_θ``'s eigenvalues.
+        shared_trunk: ``M_θ``'s factor and ``V_θ`` as two heads of one MLP
+            ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
+        **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
+    """
+
+    def __init__(self, mass_eps: float = 1e-3, shared_trunk: bool = True, **kwargs) -> None:
+        _check(mass_eps, shared_trunk)
+        self.mass_eps, self.shared_trunk = mass_eps, shared_trunk
+        super().__init__(**kwargs)
+
+    def build_field(
+        self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
+    ) -> MechanicalLagrangianField:
+        nets = _nets(self, input_dim, hidden_dim, n_hidden, activation)
+        return MechanicalLagrangianField(nets)
+
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        """``M_θ(q)``: ``(B, k) -> (B, k, k)``."""
+        return self.field.nets.mass(q)
+
+    def potential(self, q: Tensor) -> Tensor:
+        """``V_θ(q)``: ``(B, k) -> (B,)``."""
+        return self.field.nets.potential(q)
+
+    def energy(self, x: Tensor) -> Tensor:
+        """``E_θ(q, q̇) = ½ q̇ᵀM_θq̇ + V_θ``: ``(B, 2k) -> (B,)``."""
+        return self.field.energy(x)
+
+    def hamiltonian(self, y: Tensor) -> Tensor:
+        """The learned energy in the data's coordinates (``field.hamiltonian``)."""
+        return self.field.hamiltonian(y)
