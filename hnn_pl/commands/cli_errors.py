@@ -10,7 +10,8 @@
   config's class takes (what LightningCLI restores, without resolving a class path);
   :func:`refuse_changed_options`: an option given on the command line (or the
   objective) that differs from the checkpoint's is refused, never silently replaced.
-- :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor.
+- :func:`check_starts`: a ``predict`` file of starts is a finite ``(B, D)`` tensor,
+  or a positions window the observer infers the starts from.
 - the plain commands' numeric options are read by type functions (:func:`positive_int`,
   :func:`finite_float`, …) that refuse a value out of range, non-finite or not plainly
   written (``1_5``, ``0x10``) at parse time, naming the option; the trainer's numbers
@@ -350,18 +351,27 @@ def _same(a: Any, b: Any) -> bool:
 
 def check_starts(path: str, width: int) -> None:
     """Refuse a ``predict`` file of starts that is missing, not a tensor, not
-    ``(B, width)`` or not finite, before any data or directory is made."""
+    ``(B, width)`` or not finite, before any data or directory is made; or, for a
+    positions window (a ``.csv`` or a saved dict, :func:`~hnn_pl.evaluation.observer.
+    read_positions_window`), one the observer cannot read with ``k = width / 2``."""
     if not Path(path).is_file():
         raise CLIError(f"starts {path}: no such file")
     import torch
 
+    if Path(path).suffix == ".csv":
+        return _check_window(path, width)
     try:
         y0 = torch.load(path, weights_only=True, map_location="cpu")
     except Exception:  # noqa: BLE001 - any unreadable file is the same user error
         raise CLIError(f"starts {path}: cannot be read as a torch-saved tensor") from None
+    if isinstance(y0, dict):
+        return _check_window(path, width)
     if not torch.is_tensor(y0) or not y0.is_floating_point():
         kind = f"{y0.dtype} tensor" if torch.is_tensor(y0) else type(y0).__name__
-        raise CLIError(f"starts {path}: holds a {kind}; expected a float tensor (B, {width})")
+        raise CLIError(
+            f"starts {path}: holds a {kind}; expected a float tensor (B, {width}) or a "
+            f'positions window {{"q": (B, M, {width // 2}), "t": (M,)}}'
+        )
     if y0.ndim != 2 or y0.shape[1] != width or y0.shape[0] == 0:
         raise CLIError(
             f"starts {path}: shape {tuple(y0.shape)}; the model's states need (B, {width})"
@@ -373,6 +383,16 @@ def check_starts(path: str, width: int) -> None:
             f"starts {path}: {len(rows)} of {y0.shape[0]} rows are not finite (rows "
             f"{rows[:5]}{'...' if len(rows) > 5 else ''})"
         )
+
+
+def _check_window(path: str, width: int) -> None:
+    """:func:`check_starts` for a positions window: its reader's refusal, one line."""
+    from hnn_pl.evaluation.observer import read_positions_window
+
+    try:
+        read_positions_window(path, width // 2)
+    except ValueError as err:
+        raise CLIError(str(err)) from None
 
 
 def check_threads(requested: Any) -> int | None:

@@ -58,6 +58,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -435,3 +436,88 @@ def infer_starts(field: Any, t: Tensor, q: Tensor, **kw: Any) -> Tensor:
     ``t (M,)`` or ``(B, M)``; ``kw`` as :func:`observe`. A row whose input is bad is
     NaN (a rollout from it stops at once as diverged)."""
     return observe(field, t, q, **kw).y0
+
+
+@dataclass
+class PositionsWindow:
+    """Observed positions to infer starts from: ``t (B, M)`` float64 times since each
+    row's first sample, ``q (B, M, k)`` float64 positions, ``t0 (B,)`` float64 the file's
+    time of each row's first sample."""
+
+    t: Tensor
+    q: Tensor
+    t0: Tensor
+
+
+def read_positions_window(path: str | Path, k: int) -> PositionsWindow:
+    """A file of positions windows, checked: a CSV ``trajectory,time,q1,…,qk`` (or
+    ``trajectory,time,q`` for ``k = 1``; a recording's format, one window per
+    trajectory, the first ``M`` samples of each with ``M`` the shortest trajectory's
+    count), or a ``torch.save``-d dict ``{"q": (B, M, k), "t": (M,) or (B, M)}``.
+
+    Raises:
+        ValueError: one line, ``starts PATH: what is wrong`` — an unreadable file, a
+            states CSV, missing keys, a shape other than ``(B, M, k)`` with ``M >= 2``,
+            a non-finite value, times not strictly increasing within a row.
+    """
+    path = Path(path)
+    if path.suffix == ".csv":
+        return _csv_window(path, k)
+    try:
+        obj = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception:  # noqa: BLE001 - any unreadable file is the same user error
+        raise ValueError(f"starts {path}: cannot be read as a torch-saved dict") from None
+    return _dict_window(path, obj, k)
+
+
+def _csv_window(path: Path, k: int) -> PositionsWindow:
+    from hnn_pl.data.recording import load_recording
+
+    try:
+        rec = load_recording(path)
+    except ValueError as err:
+        raise ValueError(f"starts {str(err).removeprefix('recording ')}") from None
+    if not rec.positions:
+        raise ValueError(
+            f"starts {path}: holds states (q, p); a positions window's header is "
+            f"trajectory,time,{','.join(f'q{i}' for i in range(1, k + 1))}"
+        )
+    if rec.y.shape[-1] != k:
+        raise ValueError(f"starts {path}: {rec.y.shape[-1]} position columns; the model has {k}")
+    counts = torch.bincount(rec.traj)
+    m = int(counts.min())
+    rows = (torch.cumsum(counts, 0) - counts)[:, None] + torch.arange(m)
+    return PositionsWindow(rec.t[rows], rec.y[rows], rec.t0)
+
+
+def _dict_window(path: Path, obj: Any, k: int) -> PositionsWindow:
+    expected = f'expected a dict {{"q": (B, M, {k}), "t": (M,) or (B, M)}}'
+    if not isinstance(obj, dict):
+        raise ValueError(f"starts {path}: holds a {type(obj).__name__}; {expected}")
+    if not {"q", "t"} <= set(obj):
+        raise ValueError(f"starts {path}: a dict with keys {sorted(map(str, obj))}; {expected}")
+    q, t = obj["q"], obj["t"]
+    for name, x in (("q", q), ("t", t)):
+        if not torch.is_tensor(x) or not x.is_floating_point():
+            raise ValueError(f"starts {path}: {name!r} is not a float tensor; {expected}")
+    if q.ndim != 3 or q.shape[-1] != k or q.shape[1] < 2 or q.shape[0] == 0:
+        raise ValueError(f"starts {path}: 'q' has shape {tuple(q.shape)}; {expected}, M >= 2")
+    B, M = q.shape[:2]
+    if t.shape not in ((M,), (B, M)):
+        raise ValueError(
+            f"starts {path}: 't' has shape {tuple(t.shape)}; 'q' needs ({M},) or {B, M}"
+        )
+    t, q = t.to(F64).expand(B, M), q.to(F64)
+    bad = ~(torch.isfinite(q).flatten(1).all(-1) & torch.isfinite(t).all(-1))
+    if bool(bad.any()):
+        raise ValueError(f"starts {path}: rows {_few(bad)} hold a value that is not finite")
+    back = ~(t.diff(dim=-1) > 0).all(-1)
+    if bool(back.any()):
+        raise ValueError(f"starts {path}: times not strictly increasing in rows {_few(back)}")
+    return PositionsWindow(t - t[:, :1], q, t[:, 0].clone())
+
+
+def _few(rows: Tensor) -> str:
+    """``[0, 3, 7]`` or ``[0, 1, 2, 3, 4]...``: the first five flagged rows of ``(B,)``."""
+    index = rows.nonzero().flatten().tolist()
+    return f"{index[:5]}{'...' if len(index) > 5 else ''}"
