@@ -7,6 +7,8 @@ runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``
 import data
 import independent
 import integrators
+import observer
+import positions
 import startup
 import symplectic
 import threads
@@ -26,5 +28,7 @@ if __name__ == "__main__":
         "symplectic": symplectic,
         "independent": independent,
         "trajectory": trajectory,
+        "observer": observer,
+        "positions": positions,
     }
     main(topics, REPORT)

@@ -255,7 +255,12 @@ class RolloutWriter(_DataProtocol, BasePredictionWriter):
     file's time of each row's ``t = 0`` (its times in the file: ``t + t0[b]``).
     Given starts: ``t``, ``y``, ``h``, ``energy`` (state), ``frames`` (pixel), each
     row's ``status`` and ``t_stop`` (rows that stopped early are counted in the printed
-    line; the CLI refuses a file of starts that is not a finite ``(B, D)`` tensor). The
+    line; the CLI refuses a file of starts that is not a finite ``(B, D)`` tensor). A
+    state model's ``starts`` may instead be positions windows (a CSV
+    ``trajectory,time,q…`` or a dict ``{"q": (B, M, k), "t": (M,)}``,
+    :func:`~hnn_pl.evaluation.observer.read_positions_window`): the observer infers each
+    row's start at its first time, and the file also holds ``t0 (B,)`` (that time) and
+    ``observed_rms (B,)`` (the observer's position residual). The
     ``predict_step`` outputs (state models: ``dy/dt`` at the held-out states; pixel:
     their latent codes) stay in ``trainer.predict_loop.predictions``, not in the
     file. The file goes to the checkpoint's run directory (``…/version_N/``), else
@@ -291,11 +296,25 @@ class RolloutWriter(_DataProtocol, BasePredictionWriter):
         return Path.cwd()
 
     def _given_starts(self, pl_module: LightningModule, dm: Any) -> dict[str, Any]:
-        y0 = torch.load(self.starts, weights_only=True)
+        """The rollouts from the file's starts, or from the starts the observer infers
+        from its positions windows (then also ``t0``, each row's first time in the
+        file, and ``observed_rms``, the observer's fit of the window)."""
+        from hnn_pl.evaluation.observer import observe, read_positions_window
+        from hnn_pl.evaluation.views import is_pixel_model
+
         p, view = self.protocol, view_of(pl_module)
+        csv = Path(self.starts).suffix == ".csv"
+        y0 = None if csv else torch.load(self.starts, weights_only=True)
+        extra: dict[str, Any] = {}
+        if not torch.is_tensor(y0):
+            if is_pixel_model(pl_module):
+                raise ValueError(f"starts {self.starts}: a pixel model starts from frames")
+            window = read_positions_window(self.starts, view.start_width(dm) // 2)
+            o = observe(pl_module, window.t, window.q, method="rk4")
+            y0, extra = o.y0, {"t0": window.t0, "observed_rms": o.rms}
         t = view.times(p.t_end, p.n_points)
         out = rollout(pl_module, y0, t, dtype=p.dtype, energy=view.energy(dm), **p.solver_kwargs())
-        return out.as_dict()
+        return {**out.as_dict(), **extra}
 
     def write_on_epoch_end(
         self,

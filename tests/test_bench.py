@@ -16,7 +16,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SECTIONS = ("machine", "integrators", "training", "data", "startup", "tta", "threads")
-SECTIONS += ("symplectic", "independent", "trajectory")
+SECTIONS += ("symplectic", "independent", "trajectory", "observer", "positions")
 SEEDED = """# hnn_pl benchmarks
 
 Hand-written introduction.

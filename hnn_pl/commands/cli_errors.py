@@ -6,7 +6,7 @@
 - :func:`check_ckpt_path`, :func:`given_model_options`: for a ``--ckpt_path``,
   compared with the config by :mod:`hnn_pl.safe_io`.
 - :func:`check_starts`, :func:`check_trainer_numbers`, :func:`check_threads`: a
-  ``predict`` file of starts, the trainer's numbers Lightning takes unchecked, and
+  ``predict`` file of starts (or of positions windows), the trainer's numbers Lightning takes unchecked, and
   ``--threads`` (the plain commands' numbers: :mod:`hnn_pl.argtypes`).
 - :func:`user_error`: the one line an exception gives, or ``None`` for a bug.
 """
@@ -222,18 +222,27 @@ def given_model_options(argv: list[str]) -> set[str]:
 
 def check_starts(path: str, width: int) -> None:
     """Refuse a ``predict`` file of starts that is missing, not a tensor, not
-    ``(B, width)`` or not finite, before any data or directory is made."""
+    ``(B, width)`` or not finite, before any data or directory is made; or, for a
+    positions window (a ``.csv`` or a saved dict, :func:`~hnn_pl.evaluation.observer.
+    read_positions_window`), one the observer cannot read with ``k = width / 2``."""
     if not Path(path).is_file():
         raise CLIError(f"starts {path}: no such file")
     import torch
 
+    if Path(path).suffix == ".csv":
+        return _check_window(path, width)
     try:
         y0 = torch.load(path, weights_only=True, map_location="cpu")
     except Exception:  # noqa: BLE001 - any unreadable file is the same user error
         raise CLIError(f"starts {path}: cannot be read as a torch-saved tensor") from None
+    if isinstance(y0, dict):
+        return _check_window(path, width)
     if not torch.is_tensor(y0) or not y0.is_floating_point():
         kind = f"{y0.dtype} tensor" if torch.is_tensor(y0) else type(y0).__name__
-        raise CLIError(f"starts {path}: holds a {kind}; expected a float tensor (B, {width})")
+        raise CLIError(
+            f"starts {path}: holds a {kind}; expected a float tensor (B, {width}) or a "
+            f'positions window {{"q": (B, M, {width // 2}), "t": (M,)}}'
+        )
     if y0.ndim != 2 or y0.shape[1] != width or y0.shape[0] == 0:
         raise CLIError(
             f"starts {path}: shape {tuple(y0.shape)}; the model's states need (B, {width})"
@@ -245,6 +254,16 @@ def check_starts(path: str, width: int) -> None:
             f"starts {path}: {len(rows)} of {y0.shape[0]} rows are not finite (rows "
             f"{rows[:5]}{'...' if len(rows) > 5 else ''})"
         )
+
+
+def _check_window(path: str, width: int) -> None:
+    """:func:`check_starts` for a positions window: its reader's refusal, one line."""
+    from hnn_pl.evaluation.observer import read_positions_window
+
+    try:
+        read_positions_window(path, width // 2)
+    except ValueError as err:
+        raise CLIError(str(err)) from None
 
 
 def check_threads(requested: Any) -> int | None:
