@@ -6,8 +6,9 @@
 - :func:`check_ckpt_path`, :func:`given_model_options`: for a ``--ckpt_path``,
   compared with the config by :mod:`hnn_pl.safe_io`.
 - :func:`check_starts`, :func:`check_trainer_numbers`, :func:`check_threads`: a
-  ``predict`` file of starts (or of positions windows), the trainer's numbers Lightning takes unchecked, and
-  ``--threads`` (the plain commands' numbers: :mod:`hnn_pl.argtypes`).
+  ``predict`` file of starts (or of positions windows), the trainer's numbers
+  Lightning takes unchecked, and ``--threads`` (the plain commands' numbers:
+  :mod:`hnn_pl.argtypes`).
 - :func:`user_error`: the one line an exception gives, or ``None`` for a bug.
 """
 
