@@ -27,6 +27,44 @@ from hnn_pl.loggers import run_directory
 from hnn_pl.safe_io import save_atomic
 
 
+def check_starts_file(path: str, width: int) -> None:
+    """Refuse (``ValueError``, one line) a ``predict`` file of starts that is missing, not
+    a tensor, not ``(B, width)`` or not finite; or, for a positions window (a ``.csv`` or
+    a saved dict, :func:`~hnn_pl.evaluation.observer.read_positions_window`), one the
+    observer cannot read with ``k = width / 2``."""
+    from hnn_pl.evaluation.observer import read_positions_window
+
+    if not Path(path).is_file():
+        raise ValueError(f"starts {path}: no such file")
+    if Path(path).suffix == ".csv":
+        read_positions_window(path, width // 2)
+        return
+    try:
+        y0 = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception:  # noqa: BLE001 - any unreadable file is the same user error
+        raise ValueError(f"starts {path}: cannot be read as a torch-saved tensor") from None
+    if isinstance(y0, dict):
+        read_positions_window(path, width // 2)
+        return
+    if not torch.is_tensor(y0) or not y0.is_floating_point():
+        kind = f"{y0.dtype} tensor" if torch.is_tensor(y0) else type(y0).__name__
+        raise ValueError(
+            f"starts {path}: holds a {kind}; expected a float tensor (B, {width}) or a "
+            f'positions window {{"q": (B, M, {width // 2}), "t": (M,)}}'
+        )
+    if y0.ndim != 2 or y0.shape[1] != width or y0.shape[0] == 0:
+        raise ValueError(
+            f"starts {path}: shape {tuple(y0.shape)}; the model's states need (B, {width})"
+        )
+    bad = ~torch.isfinite(y0).all(-1)
+    if bool(bad.any()):
+        rows = bad.nonzero().flatten().tolist()
+        raise ValueError(
+            f"starts {path}: {len(rows)} of {y0.shape[0]} rows are not finite (rows "
+            f"{rows[:5]}{'...' if len(rows) > 5 else ''})"
+        )
+
+
 class FinalCheckpoint(ModelCheckpoint):
     """Lightning's ``ModelCheckpoint`` (default ``save_last=True``) that also saves at
     the end of ``fit``, so ``last.ckpt`` is the model at the final step.

@@ -222,47 +222,12 @@ def given_model_options(argv: list[str]) -> set[str]:
 
 
 def check_starts(path: str, width: int) -> None:
-    """Refuse a ``predict`` file of starts that is missing, not a tensor, not
-    ``(B, width)`` or not finite, before any data or directory is made; or, for a
-    positions window (a ``.csv`` or a saved dict, :func:`~hnn_pl.evaluation.observer.
-    read_positions_window`), one the observer cannot read with ``k = width / 2``."""
-    if not Path(path).is_file():
-        raise CLIError(f"starts {path}: no such file")
-    import torch
-
-    if Path(path).suffix == ".csv":
-        return _check_window(path, width)
-    try:
-        y0 = torch.load(path, weights_only=True, map_location="cpu")
-    except Exception:  # noqa: BLE001 - any unreadable file is the same user error
-        raise CLIError(f"starts {path}: cannot be read as a torch-saved tensor") from None
-    if isinstance(y0, dict):
-        return _check_window(path, width)
-    if not torch.is_tensor(y0) or not y0.is_floating_point():
-        kind = f"{y0.dtype} tensor" if torch.is_tensor(y0) else type(y0).__name__
-        raise CLIError(
-            f"starts {path}: holds a {kind}; expected a float tensor (B, {width}) or a "
-            f'positions window {{"q": (B, M, {width // 2}), "t": (M,)}}'
-        )
-    if y0.ndim != 2 or y0.shape[1] != width or y0.shape[0] == 0:
-        raise CLIError(
-            f"starts {path}: shape {tuple(y0.shape)}; the model's states need (B, {width})"
-        )
-    bad = ~torch.isfinite(y0).all(-1)
-    if bool(bad.any()):
-        rows = bad.nonzero().flatten().tolist()
-        raise CLIError(
-            f"starts {path}: {len(rows)} of {y0.shape[0]} rows are not finite (rows "
-            f"{rows[:5]}{'...' if len(rows) > 5 else ''})"
-        )
-
-
-def _check_window(path: str, width: int) -> None:
-    """:func:`check_starts` for a positions window: its reader's refusal, one line."""
-    from hnn_pl.evaluation.observer import read_positions_window
+    """:func:`hnn_pl.callbacks.check_starts_file` before any data or directory is made,
+    its refusal as one line."""
+    from hnn_pl.callbacks import check_starts_file
 
     try:
-        read_positions_window(path, width // 2)
+        check_starts_file(path, width)
     except ValueError as err:
         raise CLIError(str(err)) from None
 

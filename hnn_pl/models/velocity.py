@@ -84,13 +84,15 @@ def chart_of(system: Any) -> VelocityChart | None:
 
 def system_from_spec(spec: Any) -> Any:
     """The system of a checkpoint's ``datamodule_hyper_parameters["system"]``
-    (``{"class_path", "init_args"}``), or ``None``."""
+    (``{"class_path", "init_args"}``) if its class is already imported (the package's
+    systems are; a name read from a file is never imported), or ``None``."""
     if not (isinstance(spec, dict) and spec.get("class_path")):
         return None
-    import importlib
+    import hnn_pl.systems  # noqa: F401 - the bundled systems, by their own names
+    from hnn_pl.safe_io import loaded_class
 
-    module, name = str(spec["class_path"]).rsplit(".", 1)
-    return getattr(importlib.import_module(module), name)(**(spec.get("init_args") or {}))
+    cls = loaded_class(str(spec["class_path"]))
+    return None if cls is None else cls(**(spec.get("init_args") or {}))
 
 
 def _versioned(batch: tuple[Tensor, ...]) -> tuple[tuple[Tensor, int], ...]:
