@@ -164,7 +164,9 @@ def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
     assert {"rollout/phase_portrait", "rollout/energy"} <= set(tags["images"])
 
 
-_TWIN = re.compile(r"_(baseline|dissipative)$")
+_TWIN = re.compile(r"_(baseline|dissipative|lnn|mechanical_hnn)$")
+#: the model class of a twin config, by its suffix
+_TWIN_CLASS = {"dissipative": "DissipativeHNN", "lnn": "LNN", "mechanical_hnn": "MechanicalHNN"}
 
 
 def _run_name(config: str) -> str:
@@ -175,8 +177,9 @@ def _run_name(config: str) -> str:
 
 def _model_class(config: str) -> str:
     stem = Path(config).stem
-    if stem.endswith("_dissipative"):
-        return "DissipativeHNN"
+    twin = _TWIN.search(stem)
+    if twin and twin.group(1) in _TWIN_CLASS:
+        return _TWIN_CLASS[twin.group(1)]
     kind = "Baseline" if stem.endswith("_baseline") else "HNN"
     return f"Autoencoder{kind}" if stem.startswith("pixel") else kind
 
@@ -210,7 +213,9 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
     assert (trainer["accelerator"], trainer["devices"], trainer["max_epochs"]) == ("cpu", 1, -1)
     assert trainer["inference_mode"] is False and trainer["enable_model_summary"] is False
     task = re.sub(
-        r"(_fast|_traj|_positions(_fd)?)?(_baseline|_dissipative)?$", "", Path(config).stem
+        r"(_fast|_traj|_positions(_fd)?|_100)?(_baseline|_dissipative|_lnn|_mechanical_hnn)?$",
+        "",
+        Path(config).stem,
     )
     assert [c["init_args"]["task"] for c in trainer["callbacks"]] == [task, task]
 
@@ -219,10 +224,13 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
 def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(config):
     twin = _resolved(config)
     hnn = _resolved(_TWIN.sub("", Path(config).stem) + ".yaml")
+    own = set(twin["model"]["init_args"]) - set(hnn["model"]["init_args"])  # the class's own
     for cfg in (twin, hnn):
         cfg["trainer"]["logger"]["init_args"].pop("name")
         cfg["model"].pop("class_path")
         cfg["model"]["init_args"].pop("momentum_only", None)
+        for k in own:
+            cfg["model"]["init_args"].pop(k, None)
     assert twin == hnn
 
 

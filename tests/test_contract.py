@@ -11,7 +11,13 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from hnn_pl.data import PixelPendulumData, RealPendulumData, RecordingData, SimulatedData
+from hnn_pl.data import (
+    ChainPendulumData,
+    PixelPendulumData,
+    RealPendulumData,
+    RecordingData,
+    SimulatedData,
+)
 from hnn_pl.evaluation import ObservedData, PixelData, StateData, SystemData
 from hnn_pl.evaluation.contract import members, problems
 from hnn_pl.systems import MassSpring, NBody, Pendulum, ThreeBody, TwoBody
@@ -20,7 +26,7 @@ STATE = (StateData, SystemData, ObservedData)
 SYSTEMS = {"spring": MassSpring, "pendulum": Pendulum, "two_body": TwoBody}
 SYSTEMS |= {"three_body": ThreeBody, "nbody": NBody}
 #: the DataModules checked below
-CHECKED = (SimulatedData, RecordingData, RealPendulumData, PixelPendulumData)
+CHECKED = (SimulatedData, RecordingData, RealPendulumData, PixelPendulumData, ChainPendulumData)
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
@@ -73,6 +79,13 @@ def test_recording_data_and_the_real_pendulum(tmp_path):
     ):
         dm.setup()
         _satisfies(dm, STATE)
+
+
+def test_chain_pendulum_data(tmp_path):
+    dm = ChainPendulumData(n_train=8, n_val=4, n_test=4, n_pool=8, cache_dir=str(tmp_path))
+    dm.prepare_data()
+    dm.setup()
+    _satisfies(dm, STATE)
 
 
 def test_pixel_data(tmp_path):
