@@ -337,7 +337,11 @@ class RolloutWriter(_DataProtocol, BasePredictionWriter):
         """The rollouts from the file's starts, or from the starts the observer infers
         from its positions windows (then also ``t0``, each row's first time in the
         file, and ``observed_rms``, the observer's fit of the window)."""
-        from hnn_pl.evaluation.observer import observe, read_positions_window
+        from hnn_pl.evaluation.observer import (
+            observe,
+            read_positions_window,
+            training_momentum_bound,
+        )
         from hnn_pl.evaluation.views import is_pixel_model
 
         p, view = self.protocol, view_of(pl_module)
@@ -348,7 +352,8 @@ class RolloutWriter(_DataProtocol, BasePredictionWriter):
             if is_pixel_model(pl_module):
                 raise ValueError(f"starts {self.starts}: a pixel model starts from frames")
             window = read_positions_window(self.starts, view.start_width(dm) // 2)
-            o = observe(pl_module, window.t, window.q, method="rk4")
+            bound = training_momentum_bound(pl_module, dm)
+            o = observe(pl_module, window.t, window.q, method="rk4", p_bound=bound)
             y0, extra = o.y0, {"t0": window.t0, "observed_rms": o.rms}
         t = view.times(p.t_end, p.n_points)
         out = rollout(pl_module, y0, t, dtype=p.dtype, energy=view.energy(dm), **p.solver_kwargs())

@@ -155,6 +155,46 @@ def test_uneven_times_per_row():
     assert (o.y0 - y0).abs().max() < 1e-4  # each row's state at its own first time
 
 
+def test_a_momentum_bound_holds_every_start_inside_it_and_costs_nothing_within():
+    """``p_bound``: starts whose momenta lie inside it are recovered as without it;
+    the others end on the bound (never outside), where the search was clipped."""
+    system = MassSpring()
+    y0 = starts(system, 25, seed=4)
+    q = positions(system, y0, GRID[:15])
+    b = 0.8 * y0[:, 1].abs().max()
+    o = observe(system, GRID[:15], q, p_bound=b)
+    assert (o.y0[:, 1].abs() <= b * (1 + 1e-12)).all()
+    inside = y0[:, 1].abs() < 0.9 * b
+    assert 0 < int(inside.sum()) < 25
+    assert (o.y0[inside] - y0[inside]).abs().max() < 1e-4
+    outside = y0[:, 1].abs() > b
+    assert torch.allclose(o.y0[outside, 1].abs(), b.expand(int(outside.sum())))
+    with pytest.raises(ValueError, match="p_bound"):
+        observe(system, GRID[:15], q, p_bound=0.0)
+
+
+def test_the_training_momentum_bound_is_the_models_own_states_else_its_data():
+    """1.5 × the largest ``|p_i|`` the model was trained on: its learned states (in its
+    own gauge) when it holds them, else the training states of states data; nothing
+    for a system or for positions alone without learned states."""
+    from types import SimpleNamespace
+
+    from hnn_pl.evaluation.observer import MOMENTUM_BOUND, training_momentum_bound
+
+    model = HNN(input_dim=2, hidden_dim=8)
+    x = torch.tensor([[0.1, -2.0], [0.3, 1.0]])
+    states_dm = SimpleNamespace(observe="states", x_train=x)
+    assert torch.allclose(
+        training_momentum_bound(model, states_dm), MOMENTUM_BOUND * 2.0 * torch.ones(1, dtype=F64)
+    )
+    assert training_momentum_bound(model, SimpleNamespace(observe="positions")) is None
+    model.states = nn.Parameter(torch.tensor([[0.0, 0.5], [1.0, -0.25]]))
+    assert torch.allclose(
+        training_momentum_bound(model, states_dm), torch.tensor([0.75], dtype=F64)
+    )
+    assert training_momentum_bound(MassSpring(), states_dm) is None
+
+
 class Frozen(nn.Module):
     """``q̇ = 0``: the momenta do not move the positions (a singular Newton Jacobian)."""
 

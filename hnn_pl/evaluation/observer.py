@@ -23,7 +23,8 @@ trajectories and deterministic (no random draws):
    back to ``p = s·v̂₀``, ``s`` the median ``|p|/|v̂₀|`` of the rows Newton solved (1 if
    none).
 3. **Coarse search** — the candidates ``(q̂₀, c·p)`` for every fit and every ``c`` of
-   ``scales``, and a grid of momenta, all rolled out in one call (one step per interval,
+   ``scales``, and a grid of momenta, each momentum clipped to ``|p_i| ≤ p_bound_i``
+   when a bound is given, all rolled out in one call (one step per interval,
    a module's field in float32 — half the cost of float64: it only ranks them); each row
    keeps the one of the smallest sum of squares.
 4. **Levenberg–Marquardt** on ``(q₀, p₀)`` over all ``M`` positions: the residual's
@@ -37,7 +38,15 @@ trajectories and deterministic (no random draws):
    ``√(1e-5·(Mk − 2k)) ≈ 1 %`` (15 samples, ``k = 1``) of the start's standard
    error — or its step is below ``xtol·(1 + |y₀|)``,
    ``xtol = 0.01·√ε`` (``ε`` of the dtype the field runs in: a float32 field's rollouts
-   are only that exact); the others continue, up to ``iters`` iterations. Forward
+   are only that exact); the others continue, up to ``iters`` iterations. With a
+   ``p_bound``, each trial's momenta are clipped to it (a projected step).
+
+A learned field is trusted only where it was trained: on noisy positions a start far
+outside the training momenta can fit the first samples marginally better than the
+truth and then roll out into a region the field never saw (a trained spring HNN's
+observer picked ``|p| ≈ 6–8`` where training reached 3, position MSE 0.90 where a
+bounded search gives 0.09). :func:`training_momentum_bound` gives ``p_bound`` for a
+trained model: :data:`MOMENTUM_BOUND` times the largest ``|p_i|`` it was trained on. Forward
    differences of step ``√ε·(1 + |y₀ᵢ|)`` bias the minimiser of noisy data by about
    ``√ε`` relative (1e-8 in float64), far below what the noise leaves undetermined.
 
@@ -76,6 +85,9 @@ POSITION_SAMPLES = 15
 #: float32 field's cost is that noisy): about 1 % of the start's standard error
 FTOL = 1e-5
 _LAMBDA0, _LAMBDA_MAX = 1e-3, 1e12
+#: a trained model's observer searches momenta up to this factor of the largest ``|p_i|``
+#: it was trained on (:func:`training_momentum_bound`)
+MOMENTUM_BOUND = 1.5
 
 
 class ObserverStatus(enum.IntEnum):
@@ -275,6 +287,7 @@ def observe(
     newton_iters: int = 8,
     grid: int = 21,
     dtype: str | torch.dtype | None = "float64",
+    p_bound: Tensor | float | None = None,
 ) -> Observation:
     """Infer each row's start ``(q₀, p₀)`` from its observed positions (module docstring).
 
@@ -296,6 +309,8 @@ def observe(
             100 windows of trained seed-0 pendulum and spring HNNs, 21 never ended
             worse than 41 (11 did once).
         dtype: the field's evaluation dtype (:func:`float64_field`).
+        p_bound: ``|p_i| ≤ p_bound_i`` for every candidate and iterate (a scalar or
+            ``(k,)``; ``None``: unbounded), e.g. :func:`training_momentum_bound`.
 
     Returns:
         an :class:`Observation`; ``y0 (B, 2k)`` float64 on ``q``'s device.
@@ -320,7 +335,12 @@ def observe(
     q0 = torch.cat([a for a, _ in fitted])
     v0 = torch.cat([v for _, v in fitted])
     p0, _ = momentum_for_velocity(f, q0, v0, newton_iters, eps ** (1 / 3))
-    z, cost = _coarse_search(fit.ranking(field, dtype), q0, p0, scales, grid)
+    bound = None
+    if p_bound is not None:
+        bound = torch.as_tensor(p_bound, dtype=F64, device=q.device).expand(k).clone()
+        if not bool((torch.isfinite(bound) & (bound > 0)).all()):
+            raise ValueError(f"observe: p_bound must be finite and > 0, got {bound.tolist()}")
+    z, cost = _coarse_search(fit.ranking(field, dtype), q0, p0, scales, grid, bound)
     diverged = ~torch.isfinite(cost) & ~bad
     z = torch.where(diverged[:, None], torch.cat([fitted[-1][0], p0[-B:]], -1), z)
 
@@ -328,7 +348,7 @@ def observe(
     status[bad] = ObserverStatus.BAD_INPUT
     status[diverged] = ObserverStatus.DIVERGED
     tols = (eps**0.5, 0.01 * eps**0.5, max(FTOL, 16 * eps))
-    z, status, iterations, cost = _levenberg_marquardt(fit, z, status, iters, *tols)
+    z, status, iterations, cost = _levenberg_marquardt(fit, z, status, iters, *tols, bound)
     unscored = cost.isnan()
     if bool(unscored.any()):
         cost[unscored] = fit.costs(z[unscored], rows[unscored])[0]
@@ -339,34 +359,45 @@ def observe(
 
 
 def _coarse_search(
-    fit: _Fit, q0: Tensor, p0: Tensor, scales: Sequence[float], grid: int = 0
+    fit: _Fit,
+    q0: Tensor,
+    p0: Tensor,
+    scales: Sequence[float],
+    grid: int = 0,
+    bound: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Stage 3 of the module docstring: of the candidates ``(q̂₀, c·p)`` for the ``F`` fits
-    (``q0``, ``p0 (F·B, k)``, fit-major) and each ``c`` of ``scales``, each row's best
-    start ``(B, 2k)`` and its cost ``(B,)`` (``inf``: none was finite), all rolled out in
-    one call of one step per interval."""
+    (``q0``, ``p0 (F·B, k)``, fit-major) and each ``c`` of ``scales`` (momenta clipped to
+    ``bound (k,)`` when given), each row's best start ``(B, 2k)`` and its cost ``(B,)``
+    (``inf``: none was finite), all rolled out in one call of one step per interval."""
     B, k = fit.q.shape[0], p0.shape[-1]
     c = torch.tensor(list(scales) or [1.0], dtype=F64, device=q0.device)
     cand = torch.cat([q0.expand(len(c), -1, -1), c[:, None, None] * p0], -1).reshape(-1, 2 * k)
     if grid and k <= 2:
-        cand = torch.cat([cand, _momentum_grid(q0[-B:], p0, grid)])
+        cand = torch.cat([cand, _momentum_grid(q0[-B:], p0, grid, bound)])
+    if bound is not None:
+        cand = torch.cat(
+            [cand[:, :k], torch.maximum(torch.minimum(cand[:, k:], bound), -bound)], -1
+        )
     cost = fit.costs(cand, torch.arange(B, device=q0.device))
     best = cost.argmin(0)
     z = cand.reshape(cost.shape[0], B, -1)[best, torch.arange(B, device=q0.device)]
     return z, cost.min(0).values
 
 
-def _momentum_grid(q0: Tensor, p0: Tensor, n: int) -> Tensor:
+def _momentum_grid(q0: Tensor, p0: Tensor, n: int, bound: Tensor | None = None) -> Tensor:
     """Candidates ``(q̂₀, p)`` with ``p`` on a grid of about ``n`` points (``⌈n^{1/k}⌉`` per
-    axis) spanning ``±3·median |p|`` of the Newton momenta ``p0 (F·B, k)``: starts that
-    do not depend on the velocity fit, for rows whose fit lies near a turning point or a
-    wrong basin of the learned field. ``q0 (B, k)``; returns ``(n^k·B, 2k)``."""
+    axis) spanning ``±3·median |p|`` of the Newton momenta ``p0 (F·B, k)`` (at most
+    ``±bound_i`` on axis ``i``): starts that do not depend on the velocity fit, for rows
+    whose fit lies near a turning point or a wrong basin of the learned field.
+    ``q0 (B, k)``; returns ``(n^k·B, 2k)``."""
     k = p0.shape[-1]
     finite = p0[torch.isfinite(p0).all(-1)]
     span = 3 * (finite.abs().median() if len(finite) else torch.ones((), dtype=F64)) + 1e-3
+    span = span.expand(k) if bound is None else torch.minimum(span, bound)
     per_axis = max(3, round(n ** (1 / k)))
-    axis = torch.linspace(-1, 1, per_axis, dtype=F64, device=p0.device) * span
-    points = torch.cartesian_prod(*[axis] * k).reshape(-1, k)
+    unit = torch.linspace(-1, 1, per_axis, dtype=F64, device=p0.device)
+    points = torch.cartesian_prod(*[unit * s for s in span]).reshape(-1, k)
     B = q0.shape[0]
     return torch.cat(
         [q0.expand(len(points), B, k), points[:, None, :].expand(-1, B, k)], -1
@@ -374,9 +405,18 @@ def _momentum_grid(q0: Tensor, p0: Tensor, n: int) -> Tensor:
 
 
 def _levenberg_marquardt(
-    fit: _Fit, z: Tensor, status: Tensor, iters: int, h_rel: float, xtol: float, ftol: float
+    fit: _Fit,
+    z: Tensor,
+    status: Tensor,
+    iters: int,
+    h_rel: float,
+    xtol: float,
+    ftol: float,
+    bound: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, int, Tensor]:
-    """Stage 4 of the module docstring on the rows whose ``status`` is ``MAX_ITERS``;
+    """Stage 4 of the module docstring on the rows whose ``status`` is ``MAX_ITERS``
+    (each trial's momenta clipped to ``bound (k,)`` when given, the step taken as the
+    clipped one);
     returns the starts, the statuses (``OK`` for the rows that converged), the
     iterations run and each row's final sum of squares ``(B,)`` (NaN: a row it did not
     run on).
@@ -405,6 +445,10 @@ def _levenberg_marquardt(
         step, info = torch.linalg.solve_ex(a + torch.diag_embed(lam[:, None] * d), g)
         solved = (info == 0) & torch.isfinite(step).all(-1) & torch.isfinite(jac).flatten(1).all(-1)
         step = torch.where(solved[:, None], step, 0.0)
+        if bound is not None:
+            k = len(bound)
+            p = torch.maximum(torch.minimum(za[:, k:] - step[:, k:], bound), -bound)
+            step = torch.cat([step[:, :k], za[:, k:] - p], -1)
         trial = za - step
         r_new, jac_new = fit.residual_and_jacobian(trial, active, h_rel)
         cost_new = (r_new**2).sum(-1).nan_to_num(torch.inf, torch.inf)
@@ -429,6 +473,34 @@ def _levenberg_marquardt(
             break
         active, za, r, jac, cost, lam, nu = (x[keep] for x in (active, za, r, jac, cost, lam, nu))
     return z, status, iterations, total
+
+
+def training_momentum_bound(
+    model: Any, dm: Any = None, factor: float = MOMENTUM_BOUND
+) -> Tensor | None:
+    """``factor · max |p_i|`` over the states a trained model was trained on: ``(k,)``
+    float64, the observer's ``p_bound``.
+
+    The momenta are the model's learned states' (``model.states (S, 2k)``: from
+    positions alone, in the model's own gauge) when it holds them and its field runs on
+    the data's coordinates, else those of ``dm``'s training inputs ``x_train (N, 2k)``
+    when ``dm`` serves states. ``None`` (unbounded) for anything else: a system, a pixel
+    model, data of positions alone without learned states."""
+    if not isinstance(model, nn.Module) or not hasattr(model, "field"):
+        return None
+    states = getattr(model, "states", None)
+    canonical = getattr(model, "coordinates", "canonical") == "canonical"
+    if isinstance(states, Tensor) and states.ndim == 2 and canonical:
+        y = states.detach()
+    elif dm is not None and getattr(dm, "observe", "states") == "states":
+        y = getattr(dm, "x_train", None)
+    else:
+        return None
+    width = int(getattr(model, "hparams", {}).get("input_dim", 0))
+    if y is None or y.ndim != 2 or y.shape[-1] != width or not len(y):
+        return None
+    bound = factor * y[:, width // 2 :].double().abs().amax(0).cpu()
+    return bound if bool((torch.isfinite(bound) & (bound > 0)).all()) else None
 
 
 def infer_starts(field: Any, t: Tensor, q: Tensor, **kw: Any) -> Tensor:

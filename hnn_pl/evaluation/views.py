@@ -138,9 +138,10 @@ def observed_starts(model: Any, dm: ObservedData, n: int, p: Any) -> Tensor:
     :func:`~hnn_pl.evaluation.observer.infer_starts` from the first ``n`` observed
     positions of its trajectory (``dm``'s ``obs_*_test`` tables as observed, before any
     thinning: the held-out trajectory's first samples, noise included), in the field's
-    own gauge. Trajectories shorter than ``n`` give all their samples (``M`` = the
-    shortest)."""
-    from hnn_pl.evaluation.observer import infer_starts
+    own gauge, its momentum search bounded by
+    :func:`~hnn_pl.evaluation.observer.training_momentum_bound` (a trained model's).
+    Trajectories shorter than ``n`` give all their samples (``M`` = the shortest)."""
+    from hnn_pl.evaluation.observer import infer_starts, training_momentum_bound
 
     raw = getattr(dm, "data", None) or {}
     q, t, traj = (
@@ -151,7 +152,9 @@ def observed_starts(model: Any, dm: ObservedData, n: int, p: Any) -> Tensor:
     m = int(min(n, int(counts.min())))
     first = torch.cumsum(counts, 0) - counts
     rows = first[:, None] + torch.arange(m)
-    return infer_starts(model, t[rows].double(), q[rows][..., :k].double(), method="rk4")
+    bound = training_momentum_bound(model, dm)
+    q0 = q[rows][..., :k].double()
+    return infer_starts(model, t[rows].double(), q0, method="rk4", p_bound=bound)
 
 
 def observer_floor(dm: ObservedData, t: Tensor, y_true: Tensor, n: int, p: Any) -> Tensor:
