@@ -104,7 +104,8 @@ def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     for model, published in (("baseline", "2.10e-01 (NeuralODE)"), ("hnn", "2.30e-02 (HNN)")):
         assert f"| chain2 | 100 chunks | {model} | 1 | " in page
         assert published in page
-    assert "1.25e-02 (DeLaN)" in page and "(5.70e-05)" in page
+    assert "1.25e-02 (DeLaN)" in page and "one value for every row): 5.6" in page
+    assert ", published 5.70e-05." in page
     assert "## Published numbers" in page and "| 800 | 5.60e-02 | 8.30e-04 |" in page
 
 
