@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hnn_pl.argtypes import non_negative_int, positive_int
-from hnn_pl.experiments import collect, paper
+from hnn_pl.experiments import collect, paper, priors
 from hnn_pl.experiments.collect import Build, Job
 from hnn_pl.experiments.results import write_markdown
 
@@ -39,8 +39,12 @@ class Call:
         jobs: the runs, ``(task, model, seed)``, in the order they start.
         recipe: ``"paper"``, ``"fast"`` or ``"traj"``: which bundled configs;
             ``"positions"``: the campaign of :mod:`hnn_pl.experiments.positions` (which
-            reads ``tasks``, ``seeds``, ``workers``, ``max_steps`` and ``out``; no ``jobs``).
+            reads ``tasks``, ``seeds``, ``workers``, ``max_steps`` and ``out``; no ``jobs``);
+            ``"priors"``: the campaign of :mod:`hnn_pl.experiments.priors` (which also
+            reads ``models`` and ``chunks``; no ``jobs``).
         tasks, seeds: the tasks asked for (``None``: the recipe's default) and seeds.
+        models: the models asked for (``None``: the recipe's default).
+        chunks: the chain pendulum's training chunks (recipe ``"priors"``).
         out, json_path: ``RESULTS.md`` and the raw records.
         workers: processes (0: in this process).
         max_steps: every run's steps (``None``: the config's).
@@ -56,6 +60,8 @@ class Call:
     out: Path
     json_path: Path
     tasks: list[str] | None = None
+    models: list[str] | None = None
+    chunks: tuple[int, ...] = priors.DEFAULT_CHUNKS
     seeds: range = range(3)
     workers: int = 2
     max_steps: int | None = None
@@ -109,25 +115,39 @@ def _run_arguments(parser: ArgumentParser) -> None:
         "--tasks",
         nargs="+",
         default=None,
-        choices=list(paper.PAPER),
-        help="default: the state tasks (recipe traj: those with traj configs); add pixel "
-        "explicitly",
+        choices=[*paper.PAPER, *PRIORS_ONLY],
+        help="default: the state tasks (recipe traj: those with traj configs; recipe priors: "
+        "spring pendulum chain2); add pixel explicitly; chain2 runs in recipe priors (the "
+        "default recipe when it is named)",
     )
     parser.add_argument(
         "--models",
         nargs="+",
-        default=["baseline", "hnn"],
-        choices=list(paper.MODELS),
-        help="default: baseline hnn; dissipative runs where a task has it (real_pendulum)",
+        default=None,
+        choices=[*paper.MODELS, *(m for m in priors.MODELS if m not in paper.MODELS)],
+        help="default: baseline hnn (recipe priors: all but dissipative); dissipative runs "
+        "where a task has it (real_pendulum)",
     )
     parser.add_argument(
         "--recipe",
-        default="paper",
-        choices=(*paper.RECIPES, "positions"),
-        help="paper: the paper's settings (TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
+        default=None,
+        choices=(*paper.RECIPES, "positions", "priors"),
+        help="paper (the default; priors when --tasks names chain2): the paper's settings "
+        "(TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
         "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml); "
         "positions: from positions alone (TASK_positions*.yaml) beside the states-only and "
-        "finite-difference fits, scored through the observer (RESULTS_positions.md)",
+        "finite-difference fits, scored through the observer (RESULTS_positions.md); "
+        "priors: every model (baseline, HNN, LNN and the mass-matrix-structured pair) on "
+        "the state tasks' fast recipes and the chain pendulum (RESULTS_priors.md)",
+    )
+    parser.add_argument(
+        "--chunks",
+        nargs="+",
+        type=int,
+        default=None,
+        choices=priors.CHUNKS,
+        help="recipe priors: the chain pendulum's training chunks (default: 100; 800 is the "
+        "benchmark's large set, chain2.yaml)",
     )
     parser.add_argument("--seeds", type=positive_int, default=3, help="number of seeds (0, 1, …)")
     parser.add_argument(
@@ -138,27 +158,73 @@ def _run_arguments(parser: ArgumentParser) -> None:
     )
 
 
+#: the tasks only the priors campaign measures
+PRIORS_ONLY = tuple(t for t in priors.TASKS if t not in paper.PAPER)
+
+
 def parse(parser: ArgumentParser, argv: list[str] | None = None) -> Call:
     """The :class:`Call` that ``argv`` asks for (``None``: ``sys.argv[2:]``); bad input
     goes to ``parser.error`` before anything is made."""
     add_arguments(parser)
     args = parser.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
+    _choose_recipe(parser, args)
+    if args.recipe == "priors":
+        out = Path(args.out) if args.out else _new_run_dir("priors") / "RESULTS_priors.md"
+        json_path = Path(args.json) if args.json else out.with_suffix(".json")
+        _check_files(parser, out, json_path)
+        return _call(parser, argv, args, [], out, seeds, json_path)
     if args.recipe == "positions":
         return _call(parser, argv, args, [], Path(args.out or "RESULTS_positions.md"), seeds)
+    if args.models is None:
+        args.models = ["baseline", "hnn"]
     if args.tasks is None:
         args.tasks = paper.TRAJ_TASKS if args.recipe == "traj" else paper.DEFAULT_TASKS
     out = Path(args.out) if args.out else _new_run_dir(args.recipe) / "RESULTS.md"
     json_path = Path(args.json) if args.json else out.with_suffix(".json")
+    _check_files(parser, out, json_path)
+    jobs = paper.jobs(args.tasks, args.models, args.recipe, seeds)
+    if not jobs:
+        parser.error(f"no task of {args.tasks} has a model of {args.models}")
+    return _call(parser, argv, args, jobs, out, seeds, json_path)
+
+
+def _choose_recipe(parser: ArgumentParser, args: Namespace) -> None:
+    """``args.recipe`` settled (``priors`` when ``--tasks`` names only its tasks and no
+    recipe is given, else ``paper``) and checked against the tasks, models and chunks."""
+    only = [t for t in args.tasks or [] if t in PRIORS_ONLY]
+    if args.recipe is None:
+        if only and any(t not in priors.TASKS for t in args.tasks):
+            parser.error(
+                f"--tasks {' '.join(only)} runs in --recipe priors, which has no "
+                f"{' '.join(t for t in args.tasks if t not in priors.TASKS)}"
+            )
+        args.recipe = "priors" if only else "paper"
+    if args.recipe != "priors":
+        if only:
+            parser.error(f"--tasks {' '.join(only)} runs in --recipe priors only")
+        if args.chunks is not None:
+            parser.error("--chunks belongs to --recipe priors")
+        return
+    for option, given, known in (
+        ("--tasks", args.tasks, priors.TASKS),
+        ("--models", args.models, priors.MODELS),
+    ):
+        unknown = [x for x in given or [] if x not in known]
+        if unknown:
+            parser.error(f"{option} {' '.join(unknown)}: --recipe priors runs {', '.join(known)}")
+    if args.merge:
+        parser.error("--merge belongs to the paper, fast and traj recipes")
+    args.chunks = tuple(sorted(set(args.chunks or priors.DEFAULT_CHUNKS)))
+
+
+def _check_files(parser: ArgumentParser, out: Path, json_path: Path) -> None:
+    """``--out`` and ``--json`` name files that can be written (else ``parser.error``)."""
     for option, path in (("--out", out), ("--json", json_path)):
         if path.is_dir():
             parser.error(f"{option} {path} is a directory; name the file to write")
         if path.parent.exists() and not path.parent.is_dir():
             parser.error(f"{option} {path}: {path.parent} is not a directory")
-    jobs = paper.jobs(args.tasks, args.models, args.recipe, seeds)
-    if not jobs:
-        parser.error(f"no task of {args.tasks} has a model of {args.models}")
-    return _call(parser, argv, args, jobs, out, seeds, json_path)
 
 
 def _call(
@@ -176,6 +242,8 @@ def _call(
         out=out,
         json_path=out.with_suffix(".json") if json_path is None else json_path,
         tasks=args.tasks,
+        models=args.models,
+        chunks=args.chunks or priors.DEFAULT_CHUNKS,
         seeds=seeds,
         workers=args.workers,
         max_steps=args.max_steps,
@@ -199,8 +267,10 @@ def _new_run_dir(recipe: str) -> Path:
 def run(call: Call, build: Build) -> int:
     """Prepare every run's data, train and evaluate the runs (:mod:`collect`), write the
     records and ``RESULTS.md`` as each finishes. Exit status: 0, 1 if a run failed, 130
-    on Ctrl-C, 2 if a worker died. The ``positions`` recipe is
-    :func:`hnn_pl.experiments.positions.run`."""
+    on Ctrl-C, 2 if a worker died. The ``positions`` and ``priors`` recipes are
+    :func:`hnn_pl.experiments.positions.run` and :func:`hnn_pl.experiments.priors.run`."""
+    if call.recipe == "priors":
+        return priors.run(call, build)
     if call.recipe == "positions":
         from hnn_pl.experiments import positions
 

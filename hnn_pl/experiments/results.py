@@ -2,8 +2,8 @@
 summary (:mod:`hnn_pl.experiments.summary`), ours beside the paper's numbers.
 
 ``python -m hnn_pl.experiments.results RESULTS_fast.json [--out PAGE.md]`` renders a
-page again from its JSON records (no training): ``reproduce``'s pages and
-``reproduce --recipe positions``'s alike."""
+page again from its JSON records (no training): ``reproduce``'s pages and those of
+``reproduce --recipe positions`` and ``--recipe priors`` alike."""
 
 from __future__ import annotations
 
@@ -312,12 +312,17 @@ def _independent(rows: list[dict]) -> list[str]:
 def render_file(json_path: Path, out: Path | None = None) -> Path:
     """The page of a JSON record file written by ``reproduce`` (``{"meta", "runs"}``)
     rendered again, to ``out`` (default: the JSON file's ``.md`` sibling); its path.
-    ``reproduce --recipe positions``'s records (rows with a ``row``) render as its page."""
+    ``reproduce --recipe positions``'s records (rows with a ``row``) and ``--recipe
+    priors``'s (``meta.recipe``) render as their pages."""
     from hnn_pl.safe_io import write_atomic
 
     data = json.loads(json_path.read_text())
     records, meta = data["runs"], data["meta"]
-    if records and "row" in records[0]:
+    if meta.get("recipe") == "priors":
+        from hnn_pl.experiments import priors
+
+        page = priors.render(records, meta)
+    elif records and "row" in records[0]:
         from hnn_pl.experiments import positions
 
         page = positions.render(positions.summarise(records), records, meta)
