@@ -1,6 +1,7 @@
 # Two commands do all set-up on a fresh machine with Python ≥ 3.10:
 #   make fit    # venv + install + train the default config (CONFIG=spring_fast.yaml)
-#   make test   # venv + install + the whole test suite
+#   make test   # venv + install + the test suite's default tier (about 4 min on two cores)
+# make test-all runs every test, the `slow` end-to-end tier too (about 8½ min).
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
@@ -13,7 +14,7 @@ TORCH_INDEX ?= $(if $(filter Linux,$(shell uname -s)),--index-url https://downlo
 CONFIG ?= spring_fast.yaml
 STAMP := $(VENV)/.installed
 
-.PHONY: venv fit test docs lint bench reproduce clean
+.PHONY: venv fit test test-all docs lint bench reproduce clean
 
 venv: $(STAMP)
 
@@ -27,6 +28,9 @@ fit: $(STAMP)
 	$(BIN)/python -m hnn_pl fit --config $(CONFIG)
 
 test: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow"
+
+test-all: $(STAMP)
 	$(BIN)/python -m pytest
 
 # the documentation site (mkdocs.yml: docs/, the API from the docstrings, the results)

@@ -1,6 +1,11 @@
 """Shared fixtures: a private data cache; one thread (the tests's tensors are small, and
 a second thread only adds contention).
 
+Two tiers: ``make test`` runs ``-m "not slow"`` (every unit and the short end-to-end
+runs), ``make test-all`` everything; a test is marked ``slow`` when it is an end-to-end
+run (a README or guide page as written, a training run judged on its result, a built
+wheel) that no quicker test can stand in for.
+
 The suite runs on two pytest-xdist workers (``-n 2 --dist loadfile``, pyproject's
 ``addopts``), each one process with one torch thread. A file's tests run on one worker,
 so a module-scoped fixture (a fit, a report) is built once. Files are handed out in

@@ -3,10 +3,16 @@
 Nothing here is about time: only the report's structure, that the hand-written text
 outside the markers survives, and the accuracy ordering of the integrator rows
 (smaller steps and tighter tolerances give smaller errors).
+
+Here the topics that measure without training (``--quick --only`` :data:`UNTRAINED`,
+about 30 s); the topics that train and score models first (:data:`TRAINED`, about 70 s
+more) run in the ``slow`` tier, tests/test_bench_trained.py, on a report of their own.
+Both run on the suite's data cache (``HNN_PL_CACHE``), never the user's.
 """
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -15,8 +21,11 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SECTIONS = ("machine", "integrators", "training", "data", "startup", "tta", "threads")
-SECTIONS += ("symplectic", "independent", "trajectory", "observer", "positions")
+#: the topics this file runs: timings and data, no model trained to be scored
+UNTRAINED = ("integrators", "training", "data", "startup", "tta", "threads", "observer")
+#: the topics tests/test_bench_trained.py runs (``slow``)
+TRAINED = ("symplectic", "independent", "trajectory", "positions")
+SECTIONS = ("machine", *UNTRAINED)
 SEEDED = """# hnn_pl benchmarks
 
 Hand-written introduction.
@@ -56,25 +65,43 @@ def tables(text: str) -> list[tuple[list[str], list[list[str]]]]:
     return out
 
 
+def quick_report(out: Path, topics: tuple[str, ...], cache: Path) -> str:
+    """``benchmarks/run.py --quick --only TOPICS --out OUT`` on the data cache ``cache``;
+    the updated report's text."""
+    cmd = [sys.executable, "benchmarks/run.py", "--quick", "--out", str(out), "--only", *topics]
+    env = {**os.environ, "HNN_PL_CACHE": str(cache)}
+    subprocess.run(cmd, check=True, timeout=600, cwd=REPO, env=env, capture_output=True)
+    return out.read_text()
+
+
+def section_bodies(report: str, names: tuple[str, ...]) -> dict[str, str]:
+    """The text between each of ``names``' markers, each present exactly once."""
+    for name in names:
+        assert report.count(f"<!-- begin {name} -->") == report.count(f"<!-- end {name} -->") == 1
+    return {n: report.split(f"<!-- begin {n} -->")[1].split(f"<!-- end {n} -->")[0] for n in names}
+
+
+def has_headers(report: str, needles: tuple[str, ...]) -> None:
+    """Every one of ``needles`` is in some table's header."""
+    headers = [" ".join(h) for h, _ in tables(report)]
+    for needle in needles:
+        assert any(needle in h for h in headers), needle
+
+
 @pytest.fixture(scope="module")
-def report(tmp_path_factory) -> str:
+def report(tmp_path_factory, data_cache) -> str:
     out = tmp_path_factory.mktemp("bench") / "BENCHMARKS.md"
     out.write_text(SEEDED)
-    cmd = [sys.executable, "benchmarks/run.py", "--quick", "--out", str(out)]
-    subprocess.run(cmd, check=True, timeout=600, cwd=REPO, capture_output=True)
-    return out.read_text()
+    return quick_report(out, UNTRAINED, data_cache)
 
 
 def test_sections_and_hand_written_text(report):
     starts = [report.index(f"<!-- begin {name} -->") for name in (*SECTIONS, "other")]
-    for name in (*SECTIONS, "other"):
-        assert report.count(f"<!-- begin {name} -->") == report.count(f"<!-- end {name} -->") == 1
+    bodies = section_bodies(report, (*SECTIONS, "other"))
     assert starts[1] < starts[-1]  # the seeded integrators section was replaced in place
     assert "Hand-written introduction." in report and "Hand-written integrator note." in report
     assert "stale table" not in report and "| written | by another script |" in report
-    bodies = {
-        n: report.split(f"<!-- begin {n} -->")[1].split(f"<!-- end {n} -->")[0] for n in SECTIONS
-    }
+    assert not any(f"<!-- begin {name} -->" in report for name in TRAINED)  # --only
     assert all(tables(body) for body in bodies.values())  # every section has a table
     machine = dict(tables(bodies["machine"])[0][1])
     assert machine["torch"] and "logical" in machine["cores"]
@@ -99,12 +126,5 @@ def test_integrator_accuracy_ordering(report):
 
 
 def test_other_tables(report):
-    headers = [" ".join(h) for h, _ in tables(report)]
-    for needle in ("one solve_ivp per start", "HNN autograd (ms)", "in Trainer.fit (ms)"):
-        assert any(needle in h for h in headers), needle
-    for needle in ("cache hit (ms)", "command time (s)", "seeds reached", "busy / idle"):
-        assert any(needle in h for h in headers), needle
-    for needle in ("learned-H drift", "beating every dopri5 setting", "reference code's best"):
-        assert any(needle in h for h in headers), needle
-    for needle in ("HNN trained on", "the recording's slope", "step ÷ (calls × call)"):
-        assert any(needle in h for h in headers), needle
+    has_headers(report, ("one solve_ivp per start", "HNN autograd (ms)", "in Trainer.fit (ms)"))
+    has_headers(report, ("cache hit (ms)", "command time (s)", "seeds reached", "busy / idle"))

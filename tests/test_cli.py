@@ -237,16 +237,19 @@ def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(c
 @pytest.fixture
 def short_rollouts(monkeypatch):
     """The callbacks' protocols over their first 5 held-out starts and a tenth of the
-    horizon: the same code, a small part of its work (the protocols' numbers are tested
-    elsewhere; here every config must run)."""
+    horizon (a protocol on the held-out trajectories' own times, ``t_end=None``: their
+    first 5, whole): the same code, a small part of its work (the protocols' numbers are
+    tested elsewhere; here every config must run)."""
     import hnn_pl.callbacks
 
     real = hnn_pl.callbacks.task_protocol
 
     def short(task, name="clean", overrides=None):
         p = real(task, name, overrides)
-        if p.t_end is None or not hasattr(p, "max_starts"):
+        if not hasattr(p, "max_starts"):
             return p
+        if p.t_end is None:
+            return p.replace(max_starts=5)
         return p.replace(max_starts=5, t_end=p.t_end / 10, n_points=max(2, p.n_points // 10))
 
     monkeypatch.setattr(hnn_pl.callbacks, "task_protocol", short)

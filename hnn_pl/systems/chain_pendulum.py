@@ -80,13 +80,21 @@ class ChainPendulum(HamiltonianSystem):
         return self.n
 
     def _constants(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """``l (n,)``, ``μ (n,)`` (mass below each link, inclusive) and ``A (n, n)``."""
-        m = torch.tensor(self.masses, dtype=like.dtype, device=like.device)
-        l = torch.tensor(self.lengths, dtype=like.dtype, device=like.device)
-        mu = m.flip(0).cumsum(0).flip(0)
-        idx = torch.arange(self.n, device=like.device)
-        mu_max = mu[torch.maximum(idx[:, None], idx[None, :])]
-        return l, mu, l[:, None] * l[None, :] * mu_max
+        """``l (n,)``, ``μ (n,)`` (mass below each link, inclusive) and ``A (n, n)`` in
+        ``like``'s dtype and device, built once per pair (every field evaluation needs
+        them: rebuilt, they were a third of an integration's time). Built outside
+        inference mode, so a pair first met there serves autograd later too."""
+        key = (like.dtype, like.device)
+        cache = self.__dict__.setdefault("_constants_by", {})
+        if key not in cache:
+            with torch.inference_mode(False):
+                m = torch.tensor(self.masses, dtype=like.dtype, device=like.device)
+                l = torch.tensor(self.lengths, dtype=like.dtype, device=like.device)
+                mu = m.flip(0).cumsum(0).flip(0)
+                idx = torch.arange(self.n, device=like.device)
+                mu_max = mu[torch.maximum(idx[:, None], idx[None, :])]
+                cache[key] = (l, mu, l[:, None] * l[None, :] * mu_max)
+        return cache[key]
 
     def mass_matrix(self, q: Tensor) -> Tensor:
         """``M(θ)_jk = A_jk cos(θ_j − θ_k)``: ``(..., n) -> (..., n, n)``."""
