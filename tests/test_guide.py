@@ -16,7 +16,7 @@ from test_readme import ROOT, RUNNABLE, blocks, guide_pages, run_blocks
 #: the runnable pages of each file (test_guide.py, test_guide_1.py, test_guide_2.py)
 SHARDS = (
     ("cli.md",),
-    ("chain_pendulum.md", "recordings.md", "design.md"),
+    ("chain_pendulum.md", "recordings.md", "design.md", "priors.md"),
     ("positions.md", "bumps.md", "friction.md"),
 )
 
