@@ -7,6 +7,7 @@ runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``
 import data
 import independent
 import integrators
+import lagrangian_step
 import observer
 import positions
 import startup
@@ -30,5 +31,6 @@ if __name__ == "__main__":
         "trajectory": trajectory,
         "observer": observer,
         "positions": positions,
+        "lagrangian": lagrangian_step,
     }
     main(topics, REPORT)

@@ -6,8 +6,9 @@ outside the markers survives, and the accuracy ordering of the integrator rows
 
 Here the topics that measure without training (``--quick --only`` :data:`UNTRAINED`,
 about 30 s); the topics that train and score models first (:data:`TRAINED`, about 70 s
-more) run in the ``slow`` tier, tests/test_bench_trained.py, on a report of their own.
-Both run on the suite's data cache (``HNN_PL_CACHE``), never the user's.
+more) in tests/test_bench_trained.py, on a report of their own (two files, so the two
+workers share them). Both are in the ``slow`` tier (``make test-all``) and run on the
+suite's data cache (``HNN_PL_CACHE``), never the user's.
 """
 
 from __future__ import annotations
@@ -20,9 +21,20 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[1]
 #: the topics this file runs: timings and data, no model trained to be scored
-UNTRAINED = ("integrators", "training", "data", "startup", "tta", "threads", "observer")
+UNTRAINED = (
+    "integrators",
+    "training",
+    "data",
+    "startup",
+    "tta",
+    "threads",
+    "observer",
+    "lagrangian",
+)
 #: the topics tests/test_bench_trained.py runs (``slow``)
 TRAINED = ("symplectic", "independent", "trajectory", "positions")
 SECTIONS = ("machine", *UNTRAINED)
