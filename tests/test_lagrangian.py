@@ -10,7 +10,7 @@ import pytest
 import torch
 from torch import nn
 
-from hnn_pl import LNN, MechanicalHNN, MechanicalLNN
+from hnn_pl import HNN, LNN, Baseline, DissipativeHNN, MechanicalHNN, MechanicalLNN
 from hnn_pl.models.velocity import VelocityChart
 from hnn_pl.nets import MLP
 from hnn_pl.nets.lagrangian import (
@@ -25,6 +25,7 @@ from hnn_pl.nets.lagrangian import (
     mechanical_acceleration,
     mechanical_hamiltonian_field,
     mlp_lagrangian_terms,
+    spd_inverse,
 )
 from hnn_pl.safe_io import class_name
 from hnn_pl.systems import MassSpring, Pendulum
@@ -224,6 +225,123 @@ def test_learned_mass_matrix_is_positive_definite(shared):
             m = model.mass_matrix(q)
             torch.testing.assert_close(m, m.transpose(-1, -2), rtol=0, atol=0)
             assert torch.linalg.eigvalsh(m).min() >= 0.999 * model.mass_eps
+
+
+# ------------------------------------------------------------------ angles and M⁻¹
+
+
+def test_angle_features_closed_forms_equal_autograd():
+    """An MLP reading x_0, x_2 as (cos, sin): 2π-periodic in them, and its closed-form
+    input gradient, vector–Jacobian and Jacobian–vector products are autograd's."""
+    torch.manual_seed(20)
+    net = MLP(4, 3, 16, 2, angles=[2, 0]).double()
+    assert net.angles == (0, 2) and net.hidden[0].in_features == 6
+    x = 4 * torch.randn(7, 4, dtype=torch.float64)
+    turns = 2 * math.pi * torch.tensor([3.0, 0.0, -5.0, 0.0], dtype=torch.float64)
+    torch.testing.assert_close(net(x + turns), net(x), rtol=0, atol=1e-12)
+    assert not torch.allclose(net(x + 0.5 * turns), net(x))
+    jac = torch.stack([torch.func.jacrev(lambda z: net(z[None])[0])(row) for row in x])
+    _, g = net.value_and_input_grad(x)
+    torch.testing.assert_close(g, jac[:, 0], rtol=1e-10, atol=1e-12)
+    hs, c, u = net.activations(x), torch.randn(7, 3).double(), torch.randn(7, 4).double()
+    torch.testing.assert_close(net.input_vjp(hs, c, x), torch.einsum("bo,boi->bi", c, jac))
+    torch.testing.assert_close(net.input_jvp(hs, u, x), torch.einsum("boi,bi->bo", jac, u))
+    with pytest.raises(ValueError, match="needs its input x"):
+        net.input_vjp(hs, c)
+    for bad in ([4], [-1], [1, 1], [True]):
+        with pytest.raises(ValueError, match="angles"):
+            MLP(4, 1, angles=bad)
+
+
+def test_lnn_terms_with_angles_equal_torch_func():
+    """The LNN's closed-form Hessian blocks through the (cos q, sin q) features are
+    torch.func's of the same L; angles of q̇ are refused."""
+    torch.manual_seed(21)
+    net = MLP(4, 1, 24, 2, angles=[0, 1]).double()
+    q, v = states(32, 2, seed=22, scale=3.0)
+    closed = mlp_lagrangian_terms(net, q, v)
+    generic = lagrangian_terms(lambda a, b: net(torch.cat([a, b], -1))[..., 0], q, v)
+    for a, b in zip(closed, generic):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="index q"):
+        mlp_lagrangian_terms(MLP(4, 1, 8, angles=[2]).double(), q, v)
+
+
+def test_spd_inverse_has_the_right_jacobian_vector_product():
+    """``M_θ = A⁻¹`` for the inverse-mass models: value and forward-mode derivative (the
+    Lagrangian twin's Coriolis term) equal finite differences."""
+    g = torch.Generator().manual_seed(23)
+    b = torch.randn(5, 3, 3, generator=g, dtype=torch.float64)
+    a = b @ b.mT + torch.eye(3, dtype=torch.float64)
+    da = torch.randn(5, 3, 3, generator=g, dtype=torch.float64)
+    da = da + da.mT
+    value, tangent = torch.func.jvp(spd_inverse, (a,), (da,))
+    torch.testing.assert_close(value @ a, torch.eye(3, dtype=torch.float64).expand(5, 3, 3))
+    h = 1e-6
+    fd = (spd_inverse(a + h * da) - spd_inverse(a - h * da)) / (2 * h)
+    torch.testing.assert_close(tangent, fd, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("inverse", [False, True])
+@pytest.mark.parametrize("shared", [True, False])
+def test_structured_fields_with_angles_and_inverse_mass_equal_generic(inverse, shared):
+    """With (cos, sin) features and/or M⁻¹ learned, the closed-form fields are the
+    torch.func ones of the same M_θ, V_θ, the Hamiltonian field is J∇H_θ of its own
+    H_θ, and the Lagrangian twin's q̈ is d/dt of the Hamiltonian field's velocity."""
+    torch.manual_seed(24)
+    nets = MechanicalNets(2, 24, 2, "tanh", 1e-3, shared, [0, 1], inverse).double()
+    y = 3 * torch.randn(20, 4, dtype=torch.float64)
+    q, w = y.chunk(2, -1)
+    field = MechanicalHamiltonianField(nets)
+    got = field(y)
+    torch.testing.assert_close(
+        got, mechanical_hamiltonian_field(nets.mass, nets.potential, q, w), rtol=1e-10, atol=1e-11
+    )
+    yg = y.clone().requires_grad_(True)
+    (g,) = torch.autograd.grad(field.hamiltonian(yg).sum(), yg)
+    torch.testing.assert_close(got, torch.cat([g[:, 2:], -g[:, :2]], -1))
+    acc = MechanicalLagrangianField(nets).acceleration(q, w)
+    generic = mechanical_acceleration(nets.mass, nets.potential, q, w)
+    torch.testing.assert_close(acc, generic, rtol=1e-9, atol=1e-10)
+    z = torch.cat([q, (nets.mass(q) @ w[..., None])[..., 0]], -1)  # (q, p) with q̇ = w
+    h = 1e-6
+    fd = (field(z + h * field(z))[:, :2] - field(z - h * field(z))[:, :2]) / (2 * h)
+    torch.testing.assert_close(acc, fd, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_learned_inverse_mass_is_positive_definite(shared):
+    """``M_θ⁻¹ = LLᵀ + εI``: symmetric with eigenvalues ≥ ε for random weights, at
+    angles turned far (cos/sin features) or not; ``M_θ`` its inverse."""
+    for seed in range(10):
+        torch.manual_seed(seed)
+        model = MechanicalHNN(
+            input_dim=6, hidden_dim=32, shared_trunk=shared, inverse_mass=True, angles=[0, 2]
+        ).double()
+        for scale in (0.1, 3.0, 30.0):
+            q = scale * torch.randn(200, 3, dtype=torch.float64)
+            a = model.field.nets.factor_matrix(q)
+            torch.testing.assert_close(a, a.transpose(-1, -2), rtol=0, atol=0)
+            assert torch.linalg.eigvalsh(a).min() >= 0.999 * model.mass_eps
+            eye = torch.eye(3, dtype=torch.float64).expand(200, 3, 3)
+            torch.testing.assert_close(model.mass_matrix(q) @ a, eye)
+
+
+@pytest.mark.parametrize("cls", [HNN, Baseline, LNN, MechanicalHNN, MechanicalLNN])
+def test_models_with_angles_are_periodic_in_them(cls):
+    """Every model that takes ``angles`` gives the same field a whole turn away in
+    them (and not half a turn); one whose networks cannot read them refuses them."""
+    torch.manual_seed(25)
+    model = cls(input_dim=4, hidden_dim=16, angles=[0, 1]).double()
+    y = 2 * torch.randn(6, 4, dtype=torch.float64)
+    turn = torch.tensor([2 * math.pi, -4 * math.pi, 0.0, 0.0], dtype=torch.float64)
+    torch.testing.assert_close(model(y + turn), model(y), rtol=1e-9, atol=1e-9)
+    assert not torch.allclose(model(y + turn / 4), model(y))
+    assert model.hparams.angles == [0, 1]
+    with pytest.raises(ValueError, match="angles must be indices"):
+        cls(input_dim=4, hidden_dim=8, angles=[2])
+    with pytest.raises(ValueError, match="do not read angles"):
+        DissipativeHNN(input_dim=4, hidden_dim=8, angles=[0])
 
 
 # ------------------------------------------------------------------ the singular guard

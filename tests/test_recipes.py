@@ -99,6 +99,26 @@ def test_a_non_finite_loss_stops_before_the_update(tmp_path):
     assert all(torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))
 
 
+class _InfiniteGradient(HNN):
+    """A finite loss whose gradient is not: ``√(0·w)`` has value 0 and slope ``∞·0``."""
+
+    def training_loss(self, batch):
+        parts = super().training_loss(batch)
+        w = self.field.net.out.weight
+        return {"loss": parts["loss"] + torch.sqrt(0.0 * w.sum())}
+
+
+@pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
+def test_a_non_finite_gradient_of_a_finite_loss_stops_before_the_update(tmp_path, optimizer):
+    """One update with a non-finite gradient makes every weight NaN, on the run's last step
+    too (a diverging MechanicalLNN on chain2 wrote such a checkpoint): stopped first."""
+    model = _model(_InfiniteGradient, optimizer=optimizer)
+    before = [p.detach().clone() for p in model.parameters()]
+    with pytest.raises(FloatingPointError, match="non-finite gradient .* at step 0"):
+        _fit(model, _dm(tmp_path), 1)
+    assert all(torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))
+
+
 def test_skip_mode_drops_non_finite_steps_then_gives_up(tmp_path):
     dm = _dm(tmp_path)
     dm.setup()

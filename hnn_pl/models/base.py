@@ -12,6 +12,7 @@ from torch import Tensor, nn
 from torchmetrics import MeanSquaredError
 
 from hnn_pl.models.recipe import RecipeModel, is_count, is_weight
+from hnn_pl.nets.mlp import check_angles
 
 OBJECTIVES = ("derivative", "trajectory")
 LEARNED_STATES = ("none", "sample", "trajectory")
@@ -278,6 +279,10 @@ class DynamicsModel(RecipeModel):
         reinit_states: on observations other than the learned states were learned on
             (a resumed fit, a second fit): start them anew from these instead of
             refusing (``False``).
+        angles: indices ``i < k`` of the coordinates ``q_i`` that are angles: the
+            networks read them as ``(cos q_i, sin q_i)`` (:class:`~hnn_pl.nets.MLP`), so
+            the model is ``2π``-periodic in them however far they turn (``None``: none;
+            a model whose networks cannot take them refuses them).
         **kwargs: the training recipe, :class:`~hnn_pl.models.recipe.RecipeModel`'s
             ``lr``, ``weight_decay``, ``optimizer``, ``schedule``, … (the paper's: Adam,
             constant rate).
@@ -296,6 +301,7 @@ class DynamicsModel(RecipeModel):
         state_weight: float = 1.0,
         continuity_weight: float = 0.0,
         reinit_states: bool = False,
+        angles: list[int] | None = None,
         **kwargs,
     ) -> None:
         super().__init__(**kwargs)
@@ -313,7 +319,14 @@ class DynamicsModel(RecipeModel):
         self.continuity_weight, self.reinit_states = continuity_weight, reinit_states
         #: what the learned states were learned on (:func:`observed_data`), or ``None``
         self.states_data: dict[str, Any] | None = None
+        #: the angle coordinates the networks read as ``(cos, sin)`` (``build_field`` uses it)
+        self.angles = check_angles(angles, input_dim // 2)
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
+        if self.angles and not any(getattr(m, "angles", ()) for m in self.field.modules()):
+            raise ValueError(
+                f"model.init_args.angles: {type(self).__name__}'s networks do not read angles "
+                "as (cos, sin): remove angles"
+            )
         self.register_parameter("states", None)
         self.register_buffer("traj_first", None, persistent=False)
         self.register_buffer("obs_t_train", None, persistent=False)

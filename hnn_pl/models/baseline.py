@@ -15,4 +15,6 @@ class Baseline(DynamicsModel):
     def build_field(
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> DirectField:
-        return DirectField(MLP(input_dim, input_dim, hidden_dim, n_hidden, activation))
+        return DirectField(
+            MLP(input_dim, input_dim, hidden_dim, n_hidden, activation, getattr(self, "angles", ()))
+        )

@@ -19,7 +19,9 @@ class HNN(DynamicsModel):
     def build_field(
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> HamiltonianField:
-        return HamiltonianField(MLP(input_dim, 1, hidden_dim, n_hidden, activation))
+        return HamiltonianField(
+            MLP(input_dim, 1, hidden_dim, n_hidden, activation, getattr(self, "angles", ()))
+        )
 
     def hamiltonian(self, y: Tensor) -> Tensor:
         """The learned ``H_θ(y)``: ``(batch, 2k) -> (batch,)``."""

@@ -60,7 +60,7 @@ class LNN(VelocityModel):
     def build_field(
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> LagrangianField:
-        net = MLP(input_dim, 1, hidden_dim, n_hidden, activation)
+        net = MLP(input_dim, 1, hidden_dim, n_hidden, activation, self.angles)
         return LagrangianField(net, self.kinetic_prior, self.rcond, self.ridge, self.on_singular)
 
     def lagrangian(self, x: Tensor) -> Tensor:

@@ -16,15 +16,23 @@ from hnn_pl.nets.lagrangian import (
 
 def _nets(model: DynamicsModel, input_dim: int, hidden_dim: int, n_hidden: int, activation: str):
     return MechanicalNets(
-        input_dim // 2, hidden_dim, n_hidden, activation, model.mass_eps, model.shared_trunk
+        input_dim // 2,
+        hidden_dim,
+        n_hidden,
+        activation,
+        model.mass_eps,
+        model.shared_trunk,
+        model.angles,
+        model.inverse_mass,
     )
 
 
-def _check(mass_eps: float, shared_trunk: bool) -> None:
+def _check(mass_eps: float, shared_trunk: bool, inverse_mass: bool) -> None:
     if not (is_weight(mass_eps) and mass_eps > 0):
         raise ValueError(f"mass_eps must be finite and > 0: {mass_eps}")
-    if not isinstance(shared_trunk, bool):
-        raise ValueError(f"shared_trunk must be true or false: {shared_trunk!r}")
+    for name, value in (("shared_trunk", shared_trunk), ("inverse_mass", inverse_mass)):
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be true or false: {value!r}")
 
 
 class MechanicalHNN(DynamicsModel):
@@ -36,16 +44,30 @@ class MechanicalHNN(DynamicsModel):
     (:func:`~hnn_pl.nets.lagrangian.mechanical_hamiltonian_field`). The structure of a
     mechanical system in any coordinates (angles included), as DeLaN's in Hamiltonian form.
 
+    ``inverse_mass``: the factor gives ``M_θ⁻¹ = L Lᵀ + εI`` instead (the
+    constrained-HNN reference's parameterisation), ``dy/dt = (M_θ⁻¹p,
+    −½ ∂(pᵀM_θ⁻¹p)/∂q − ∇V_θ)`` without a solve. ``angles`` (a
+    :class:`~hnn_pl.models.base.DynamicsModel` option): the angles of ``q`` enter the
+    networks as ``(cos, sin)``.
+
     Args:
-        mass_eps: ``ε``, the floor of ``M_θ``'s eigenvalues.
+        mass_eps: ``ε``, the floor of the factor matrix's eigenvalues (``M_θ``'s, or
+            ``M_θ⁻¹``'s with ``inverse_mass``).
         shared_trunk: ``M_θ``'s factor and ``V_θ`` as two heads of one MLP
             ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
+        inverse_mass: learn the factor of ``M_θ⁻¹`` (``True``) or of ``M_θ`` (default).
         **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
     """
 
-    def __init__(self, mass_eps: float = 1e-3, shared_trunk: bool = True, **kwargs) -> None:
-        _check(mass_eps, shared_trunk)
-        self.mass_eps, self.shared_trunk = mass_eps, shared_trunk
+    def __init__(
+        self,
+        mass_eps: float = 1e-3,
+        shared_trunk: bool = True,
+        inverse_mass: bool = False,
+        **kwargs,
+    ) -> None:
+        _check(mass_eps, shared_trunk, inverse_mass)
+        self.mass_eps, self.shared_trunk, self.inverse_mass = mass_eps, shared_trunk, inverse_mass
         super().__init__(**kwargs)
 
     def build_field(
@@ -72,18 +94,27 @@ class MechanicalLNN(VelocityModel):
     Lagrangian twin of :class:`MechanicalHNN` (the same ``M_θ``, ``V_θ``), accelerations by
     a Cholesky solve with ``M_θ`` (:func:`~hnn_pl.nets.lagrangian.mechanical_acceleration`;
     no Hessian, never singular); energy ``½ q̇ᵀM_θq̇ + V_θ``. Data and objectives:
-    :class:`~hnn_pl.models.velocity.VelocityModel`.
+    :class:`~hnn_pl.models.velocity.VelocityModel`. ``inverse_mass``, ``angles``: as
+    :class:`MechanicalHNN`'s (with ``M_θ⁻¹ = A`` learned,
+    ``q̈ = (Σ_j ∂A/∂q_j q̇_j) w − A (½ ∂(wᵀAw)/∂q + ∇V_θ)``, ``w = A⁻¹q̇``).
 
     Args:
-        mass_eps: ``ε``, the floor of ``M_θ``'s eigenvalues.
+        mass_eps: ``ε``, the floor of the factor matrix's eigenvalues.
         shared_trunk: ``M_θ``'s factor and ``V_θ`` as two heads of one MLP
             ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
+        inverse_mass: learn the factor of ``M_θ⁻¹`` (``True``) or of ``M_θ`` (default).
         **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
     """
 
-    def __init__(self, mass_eps: float = 1e-3, shared_trunk: bool = True, **kwargs) -> None:
-        _check(mass_eps, shared_trunk)
-        self.mass_eps, self.shared_trunk = mass_eps, shared_trunk
+    def __init__(
+        self,
+        mass_eps: float = 1e-3,
+        shared_trunk: bool = True,
+        inverse_mass: bool = False,
+        **kwargs,
+    ) -> None:
+        _check(mass_eps, shared_trunk, inverse_mass)
+        self.mass_eps, self.shared_trunk, self.inverse_mass = mass_eps, shared_trunk, inverse_mass
         super().__init__(**kwargs)
 
     def build_field(

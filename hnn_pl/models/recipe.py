@@ -51,12 +51,13 @@ class RecipeModel(L.LightningModule):
 
     One training batch runs ``inner_steps`` optimiser steps on it (full-batch tasks:
     Lightning's per-batch work — hooks, logging, loop bookkeeping — is paid once per
-    ``inner_steps`` steps). Each step: loss, a non-finite check *before* the update
-    (``on_nonfinite="stop"`` raises ``FloatingPointError`` naming the step and the last
-    checkpoint, so no non-finite weights are ever saved; ``"skip"`` drops the step,
-    which does not count towards ``max_steps``, up to :data:`MAX_SKIPS` times;
-    L-BFGS always stops),
-    backward, optional gradient-norm clipping, the optimiser and the schedule.
+    ``inner_steps`` steps). Each step: loss, backward, a non-finite check of the loss
+    and of every gradient *before* the update (``on_nonfinite="stop"`` raises
+    ``FloatingPointError`` naming the step and the last checkpoint, so no non-finite
+    weights are ever saved — a finite loss can have an infinite gradient, and one such
+    update makes every weight NaN; ``"skip"`` drops the step, which does not count
+    towards ``max_steps``, up to :data:`MAX_SKIPS` times; L-BFGS always stops),
+    optional gradient-norm clipping, the optimiser and the schedule.
 
     Learning rate at step ``s`` of ``S`` (``S`` = ``trainer.max_steps``):
     ``constant``: ``lr``; ``cosine``: ``lr·½(1 + cos(π s/S))``; ``onecycle``:
@@ -254,9 +255,19 @@ class RecipeModel(L.LightningModule):
             if g["weight_decay"]
         )
 
-    def _nonfinite(self, parts: dict[str, Tensor], can_skip: bool = True) -> bool:
-        """Whether to skip this step; raises for ``on_nonfinite="stop"``."""
-        if bool(torch.isfinite(parts["loss"])):
+    def _finite_gradients(self) -> bool:
+        """Whether every parameter's gradient is finite (one max-abs per parameter)."""
+        grads = [p.grad.detach() for p in self.parameters() if p.grad is not None]
+        peaks = [g.abs().max() for g in grads if g.numel()]
+        return not peaks or bool(torch.stack(peaks).isfinite().all())
+
+    def _nonfinite(
+        self, parts: dict[str, Tensor], can_skip: bool = True, gradients: bool = False
+    ) -> bool:
+        """Whether to skip this step: its loss is not finite (or, ``gradients``, a
+        gradient of it is not); raises for ``on_nonfinite="stop"``."""
+        loss_ok = bool(torch.isfinite(parts["loss"]))
+        if loss_ok and (not gradients or self._finite_gradients()):
             self._skipped = 0
             return False
         skip = can_skip and self.recipe["on_nonfinite"] == "skip"
@@ -265,8 +276,9 @@ class RecipeModel(L.LightningModule):
             return True
         ckpt = getattr(self.trainer.checkpoint_callback, "last_model_path", "") or "none"
         after = f" after {MAX_SKIPS} skipped steps" if skip else ""
+        what = "training loss" if not loss_ok else "gradient of the training loss"
         raise FloatingPointError(
-            f"non-finite training loss ({float(parts['loss'].detach())}) at step {self.global_step}"
+            f"non-finite {what} ({float(parts['loss'].detach())}) at step {self.global_step}"
             f"{after}: training stopped before the update (last good checkpoint: {ckpt}). "
             "Lower model.init_args.lr, set model.init_args.grad_clip, or on_nonfinite: skip."
         )
@@ -289,6 +301,7 @@ class RecipeModel(L.LightningModule):
                     self._nonfinite(parts, can_skip=False)
                     loss = parts["loss"] + self._l2(groups)
                     self.manual_backward(loss)
+                    self._nonfinite(parts, can_skip=False, gradients=True)
                     return loss
 
                 opt.step(closure)
@@ -298,6 +311,8 @@ class RecipeModel(L.LightningModule):
                 if self._nonfinite(parts):
                     continue
                 self.manual_backward(parts["loss"])
+                if self._nonfinite(parts, gradients=True):
+                    continue
                 if r["grad_clip"] is not None:
                     self.clip_gradients(opt, r["grad_clip"], "norm")
                 opt.step()

@@ -9,7 +9,7 @@ each ``(B, 2k)``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import torch
@@ -29,6 +29,14 @@ def spd_solve(m: Tensor, b: Tensor) -> Tensor:
     factor, info = torch.linalg.cholesky_ex(m)
     x = torch.cholesky_solve(b[..., None], factor)[..., 0]
     return torch.where((info == 0)[..., None], x, torch.full_like(x, float("nan")))
+
+
+def spd_inverse(m: Tensor) -> Tensor:
+    """``m⁻¹`` of symmetric positive definite ``m (…, k, k)`` by a Cholesky solve against
+    ``I`` (not ``torch.cholesky_inverse``, whose forward-mode derivative is wrong in
+    torch 2.13: a Jacobian–vector product through it is off by O(1))."""
+    eye = torch.eye(m.shape[-1], dtype=m.dtype, device=m.device).expand_as(m)
+    return torch.cholesky_solve(eye, torch.linalg.cholesky(m))
 
 
 class Accelerations(NamedTuple):
@@ -101,9 +109,15 @@ def mlp_lagrangian_terms(net: nn.Module, q: Tensor, v: Tensor) -> LagrangianTerm
     ``∇²L = Σ_l J_lᵀ diag(σ''(a_l) ⊙ r_l) J_l`` (affine maps have no curvature). Only its
     products with the ``k + 1`` directions ``U = [(0, e_1) … (0, e_k), (q̇, 0)]`` are
     needed, so ``J_l U (B, k+1, h)`` is carried forward: ``k + 1`` extra products per
-    layer instead of ``2k`` for the full Hessian, and no backward pass of tangents."""
+    layer instead of ``2k`` for the full Hessian, and no backward pass of tangents.
+
+    With the MLP's ``angles`` (indices of ``q`` only) ``U`` enters through the features'
+    Jacobian; their own curvature acts on the ``q``–``q`` block alone, which the
+    Euler–Lagrange solve does not use."""
     k = q.shape[-1]
     x = torch.cat([q, v], -1)
+    if any(i >= k for i in getattr(net, "angles", ())):
+        raise ValueError(f"angles must index q (< {k}) in an LNN: {list(net.angles)}")
     hs = net.activations(x)
     r = net.out.weight[0].expand_as(hs[-1])
     rs = [r]
@@ -111,9 +125,16 @@ def mlp_lagrangian_terms(net: nn.Module, q: Tensor, v: Tensor) -> LagrangianTerm
         r = (r * (1 - hs[i] ** 2)) @ net.hidden[i].weight
         rs.append(r)
     rs.reverse()
-    grad_x = (rs[0] * (1 - hs[0] ** 2)) @ net.hidden[0].weight
     w1 = net.hidden[0].weight
-    t = torch.cat([w1[:, k:].T.expand(q.shape[0], k, -1), (v @ w1[:, :k].T)[:, None]], 1)
+    grad_x = (rs[0] * (1 - hs[0] ** 2)) @ w1
+    if getattr(net, "angles", ()):
+        grad_x = net.features_vjp(x, grad_x)
+        eye = torch.eye(k, dtype=x.dtype, device=x.device)
+        dirs = torch.cat([torch.zeros(k, k, dtype=x.dtype, device=x.device), eye], -1)
+        dirs = torch.cat([dirs.expand(len(x), k, 2 * k), torch.cat([v, 0 * v], -1)[:, None]], 1)
+        t = net.features_jvp(x[:, None], dirs) @ w1.T
+    else:
+        t = torch.cat([w1[:, k:].T.expand(q.shape[0], k, -1), (v @ w1[:, :k].T)[:, None]], 1)
     hess = 0.0
     for i, (h, r) in enumerate(zip(hs, rs)):
         slope = 1 - h**2
@@ -279,31 +300,35 @@ class CholeskyMass(nn.Module):
 
 
 class MechanicalLinearization(NamedTuple):
-    """``M_θ``, ``V_θ`` at one batch of ``q`` with what their ``q``-derivatives need, in
-    closed form (``tanh`` networks): the networks' activations ``hs`` (one list per
-    network), the factor's raw outputs ``raw``, the factor ``f`` and ``mass``."""
+    """``M_θ``, ``V_θ`` at one batch of ``q (B, k)`` with what their ``q``-derivatives need,
+    in closed form (``tanh`` networks): the networks' activations ``hs`` (one list per
+    network), the factor's raw outputs ``raw``, the factor ``f`` and the matrix
+    ``mass = f fᵀ + εI`` it gives: ``M_θ``, or ``M_θ⁻¹`` for ``nets.inverse``."""
 
     nets: MechanicalNets
+    q: Tensor
     hs: tuple[list[Tensor], ...]
     raw: Tensor
     f: Tensor
     mass: Tensor
 
-    def force(self, u: Tensor) -> Tensor:
-        """``∂/∂q ½ uᵀ M_θ(q) u − ∇V_θ(q)`` at fixed ``u (B, k)``: one closed-form
-        vector–Jacobian product per network: ``(B, k)``."""
-        g = self.nets.cholesky.raw_grad(self.raw, self.f, u)
+    def force(self, u: Tensor, kinetic: float = 1.0) -> Tensor:
+        """``c ∂/∂q ½ uᵀ A(q) u − ∇V_θ(q)`` at fixed ``u (B, k)``, ``A = f fᵀ + εI`` the
+        factor's matrix and ``c = kinetic``: one closed-form vector–Jacobian product per
+        network: ``(B, k)``."""
+        g = kinetic * self.nets.cholesky.raw_grad(self.raw, self.f, u)
         minus_one = -torch.ones_like(g[:, :1])
+        q = self.q
         if self.nets.shared:
-            return self.nets.net.input_vjp(self.hs[0], torch.cat([g, minus_one], -1))
-        return self.nets.mass_net.input_vjp(self.hs[0], g) + self.nets.potential_net.input_vjp(
-            self.hs[1], minus_one
+            return self.nets.net.input_vjp(self.hs[0], torch.cat([g, minus_one], -1), q)
+        return self.nets.mass_net.input_vjp(self.hs[0], g, q) + self.nets.potential_net.input_vjp(
+            self.hs[1], minus_one, q
         )
 
     def action_jvp(self, u: Tensor, dq: Tensor) -> Tensor:
-        """``d/dε M_θ(q + ε dq) u``: ``(B, k), (B, k) -> (B, k)``."""
+        """``d/dε A(q + ε dq) u`` of the factor's matrix ``A``: ``(B, k), (B, k) -> (B, k)``."""
         net = self.nets.net if self.nets.shared else self.nets.mass_net
-        d_raw = net.input_jvp(self.hs[0], dq)[:, : self.nets.cholesky.size]
+        d_raw = net.input_jvp(self.hs[0], dq, self.q)[:, : self.nets.cholesky.size]
         return self.nets.cholesky.action_tangent(self.raw, self.f, d_raw, u)
 
 
@@ -452,16 +477,23 @@ class LagrangianField(VelocityField):
 
 
 class MechanicalNets(nn.Module):
-    """A learned mass matrix and potential of ``q``: ``M_θ(q)`` (:class:`CholeskyMass`
-    of ``k(k+1)/2`` network outputs) and ``V_θ(q)`` (one output). ``shared``: one
-    ``MLP(k → h … → k(k+1)/2 + 1)`` whose hidden layers both read (as DeLaN's shared
-    trunk; the cost of one network); else two MLPs of that width and depth.
+    """A learned mass matrix and potential of ``q``: ``M_θ(q)`` from a factor matrix
+    ``A = L Lᵀ + εI`` (:class:`CholeskyMass` of ``k(k+1)/2`` network outputs) and
+    ``V_θ(q)`` (one output). ``A`` is ``M_θ`` itself, or with ``inverse`` its inverse
+    ``M_θ⁻¹`` (the constrained-HNN reference's choice: in ``(q, p)`` the kinetic energy
+    ``½ pᵀAp`` and the velocity ``Ap`` need no solve; ``M_θ``'s eigenvalues are then
+    ``≤ 1/ε``). ``shared``: one ``MLP(k → h … → k(k+1)/2 + 1)`` whose hidden layers both
+    read (as DeLaN's shared trunk; the cost of one network); else two MLPs of that width
+    and depth. ``angles``: the coordinates of ``q`` that enter the MLPs as
+    ``(cos q_i, sin q_i)`` (:class:`~hnn_pl.nets.MLP`).
 
     Args:
         dof: ``k``.
         hidden_dim, n_hidden, activation: the MLPs'.
-        eps: ``M_θ``'s eigenvalue floor.
+        eps: ``A``'s eigenvalue floor ``ε``.
         shared: one network for both (``True``) or one each.
+        angles: indices ``i < k`` of the angles among ``q``.
+        inverse: ``A = M_θ⁻¹`` (``True``) or ``A = M_θ``.
     """
 
     def __init__(
@@ -472,17 +504,19 @@ class MechanicalNets(nn.Module):
         activation: str,
         eps: float = 1e-3,
         shared: bool = True,
+        angles: Sequence[int] = (),
+        inverse: bool = False,
     ) -> None:
         from hnn_pl.nets.mlp import MLP
 
         super().__init__()
-        self.cholesky, self.shared = CholeskyMass(dof, eps), shared
+        self.cholesky, self.shared, self.inverse = CholeskyMass(dof, eps), shared, inverse
         n = self.cholesky.size
         if shared:
-            self.net = MLP(dof, n + 1, hidden_dim, n_hidden, activation)
+            self.net = MLP(dof, n + 1, hidden_dim, n_hidden, activation, angles)
         else:
-            self.mass_net = MLP(dof, n, hidden_dim, n_hidden, activation)
-            self.potential_net = MLP(dof, 1, hidden_dim, n_hidden, activation)
+            self.mass_net = MLP(dof, n, hidden_dim, n_hidden, activation, angles)
+            self.potential_net = MLP(dof, 1, hidden_dim, n_hidden, activation, angles)
 
     def outputs(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """The factor's raw outputs ``(B, k(k+1)/2)`` and ``V_θ(q) (B,)``."""
@@ -491,9 +525,20 @@ class MechanicalNets(nn.Module):
             return out[..., :-1], out[..., -1]
         return self.mass_net(q), self.potential_net(q)[..., 0]
 
-    def mass(self, q: Tensor) -> Tensor:
-        """``M_θ(q)``: ``(B, k) -> (B, k, k)``."""
+    def factor_matrix(self, q: Tensor) -> Tensor:
+        """``A(q) = L Lᵀ + εI``, ``M_θ`` or (``inverse``) ``M_θ⁻¹``: ``(B, k) -> (B, k, k)``."""
         return self.cholesky(self.outputs(q)[0])
+
+    def mass(self, q: Tensor) -> Tensor:
+        """``M_θ(q)``: ``(B, k) -> (B, k, k)`` (with ``inverse``, ``A⁻¹`` by a Cholesky
+        solve)."""
+        a = self.factor_matrix(q)
+        return spd_inverse(a) if self.inverse else a
+
+    def inverse_mass(self, q: Tensor) -> Tensor:
+        """``M_θ(q)⁻¹``: ``(B, k) -> (B, k, k)``."""
+        a = self.factor_matrix(q)
+        return a if self.inverse else spd_inverse(a)
 
     def potential(self, q: Tensor) -> Tensor:
         """``V_θ(q)``: ``(B, k) -> (B,)``."""
@@ -515,13 +560,14 @@ class MechanicalNets(nn.Module):
             hs = (self.mass_net.activations(q), self.potential_net.activations(q))
             raw = self.mass_net.out(hs[0][-1])
         f = self.cholesky.lower(raw)
-        return MechanicalLinearization(self, hs, raw, f, self.cholesky.from_factor(f))
+        return MechanicalLinearization(self, q, hs, raw, f, self.cholesky.from_factor(f))
 
 
 class MechanicalHamiltonianField(nn.Module):
     """``H_θ = ½ pᵀ M_θ(q)⁻¹ p + V_θ(q)`` and its field (:func:`mechanical_hamiltonian_field`)
     on ``y = (q, p)``: an HNN whose kinetic energy is quadratic in ``p`` with a positive
-    definite learned mass matrix.
+    definite learned mass matrix. With ``nets.inverse`` the networks give
+    ``A = M_θ⁻¹`` and ``dy/dt = (Ap, −½ ∂(pᵀAp)/∂q − ∇V_θ)`` (no solve).
 
     Args:
         nets: the learned ``M_θ`` and ``V_θ`` (:class:`MechanicalNets`).
@@ -535,8 +581,8 @@ class MechanicalHamiltonianField(nn.Module):
         """``H_θ(y)``: ``(B, 2k) -> (B,)``."""
         q, p = y.chunk(2, -1)
         raw, potential = self.nets.outputs(q)
-        m = self.nets.cholesky(raw)
-        u = spd_solve(m, p)
+        a = self.nets.cholesky(raw)
+        u = (a @ p[..., None])[..., 0] if self.nets.inverse else spd_solve(a, p)
         return 0.5 * (p * u).sum(-1) + potential
 
     def forward(self, y: Tensor) -> Tensor:
@@ -549,6 +595,8 @@ class MechanicalHamiltonianField(nn.Module):
         if not self.nets.closed_form:
             return mechanical_hamiltonian_field(self.nets.mass, self.nets.potential, q, p)
         lin = self.nets.linearize(q)
+        if self.nets.inverse:
+            return torch.cat([(lin.mass @ p[..., None])[..., 0], lin.force(p, -1.0)], -1)
         u = spd_solve(lin.mass, p)
         return torch.cat([u, lin.force(u)], -1)
 
@@ -557,7 +605,10 @@ class MechanicalLagrangianField(VelocityField):
     """``L_θ = ½ q̇ᵀ M_θ(q) q̇ − V_θ(q)`` (the Lagrangian twin of
     :class:`MechanicalHamiltonianField`) on ``x = (q, q̇)``: accelerations by
     :func:`mechanical_acceleration` (a Cholesky solve with ``M_θ``, never singular);
-    energy ``½ q̇ᵀ M_θ q̇ + V_θ``.
+    energy ``½ q̇ᵀ M_θ q̇ + V_θ``. With ``nets.inverse`` (``A = M_θ⁻¹``), ``w = A⁻¹q̇``
+    (the momenta, one Cholesky solve) and
+    ``q̈ = (Σ_j ∂A/∂q_j q̇_j) w − A (½ ∂(wᵀAw)/∂q + ∇V_θ)``, i.e. ``d/dt (A p)``
+    along the Hamiltonian field.
 
     Args:
         nets: the learned ``M_θ`` and ``V_θ`` (:class:`MechanicalNets`).
@@ -572,10 +623,15 @@ class MechanicalLagrangianField(VelocityField):
         if not self.nets.closed_form:
             return mechanical_acceleration(self.nets.mass, self.nets.potential, q, v)
         lin = self.nets.linearize(q)
+        if self.nets.inverse:
+            w = spd_solve(lin.mass, v)
+            return lin.action_jvp(w, v) + (lin.mass @ lin.force(w, -1.0)[..., None])[..., 0]
         rhs = lin.force(v) - lin.action_jvp(v, v)
         return spd_solve(lin.mass, rhs)
 
     def energy(self, x: Tensor) -> Tensor:
         q, v = x.chunk(2, -1)
         raw, potential = self.nets.outputs(q)
-        return 0.5 * (v * (self.nets.cholesky(raw) @ v[..., None])[..., 0]).sum(-1) + potential
+        a = self.nets.cholesky(raw)
+        p = spd_solve(a, v) if self.nets.inverse else (a @ v[..., None])[..., 0]
+        return 0.5 * (v * p).sum(-1) + potential

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -17,11 +17,30 @@ def activation_fn(name: str, table: dict[str, Callable] = _ACTIVATIONS) -> Calla
     return table[name]
 
 
+def check_angles(angles: Sequence[int] | None, dof: int) -> tuple[int, ...]:
+    """``angles`` as a sorted tuple of distinct configuration indices ``0 ≤ i < dof``
+    (``None``: none), or a one-line ``ValueError``."""
+    angles = tuple(angles or ())
+    if not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < dof for i in angles):
+        raise ValueError(
+            f"angles must be indices of the coordinates q (0 … {dof - 1}), got {list(angles)}"
+        )
+    if len(set(angles)) != len(angles):
+        raise ValueError(f"angles must be distinct: {list(angles)}")
+    return tuple(sorted(angles))
+
+
 class MLP(nn.Module):
     """``Linear(d→h) → σ → Linear(h→h) → σ → … → Linear(h→out, no bias)``.
 
     The reference architecture: orthogonal initialisation of every weight matrix,
     PyTorch's default biases, no bias on the output layer.
+
+    ``angles``: input coordinates that are angles enter as ``(cos x_i, sin x_i)``
+    (:meth:`features`, ``d → d + len(angles)``), so the network is ``2π``-periodic in
+    them exactly, however far an unwrapped angle has turned. The closed-form input
+    derivatives (:meth:`value_and_input_grad`, :meth:`input_vjp`, :meth:`input_jvp`)
+    are with respect to the raw input ``x``, through the features.
 
     Args:
         input_dim: ``d``, the length of the input's last axis.
@@ -29,6 +48,7 @@ class MLP(nn.Module):
         hidden_dim: ``h``, the width of each hidden layer.
         n_hidden: number of hidden layers (2 in the paper).
         activation: ``"tanh"`` (paper), ``"relu"`` or ``"softplus"``.
+        angles: indices ``i < d`` of the input coordinates read as ``(cos, sin)``.
     """
 
     def __init__(
@@ -38,18 +58,57 @@ class MLP(nn.Module):
         hidden_dim: int = 200,
         n_hidden: int = 2,
         activation: str = "tanh",
+        angles: Sequence[int] = (),
     ) -> None:
         super().__init__()
         self._act = activation_fn(activation)
-        dims = [input_dim] + [hidden_dim] * n_hidden
+        self.angles = check_angles(angles, input_dim)
+        rest = [i for i in range(input_dim) if i not in self.angles]
+        self.register_buffer("angle_index", torch.tensor(self.angles, dtype=torch.long), False)
+        self.register_buffer("rest_index", torch.tensor(rest, dtype=torch.long), False)
+        dims = [input_dim + len(self.angles)] + [hidden_dim] * n_hidden
         self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         self.out = nn.Linear(hidden_dim, output_dim, bias=False)
         self.activation = activation
         for layer in [*self.hidden, self.out]:
             nn.init.orthogonal_(layer.weight)
 
+    def features(self, x: Tensor) -> Tensor:
+        """The first layer's input ``(x_rest, cos x_A, sin x_A)``, ``x_A`` the
+        ``angles``, ``x_rest`` the other coordinates in order: ``(..., d) -> (..., d + a)``;
+        ``x`` itself without angles."""
+        if not self.angles:
+            return x
+        a = x[..., self.angle_index]
+        return torch.cat([x[..., self.rest_index], a.cos(), a.sin()], -1)
+
+    def features_vjp(self, x: Tensor, g: Tensor) -> Tensor:
+        """``(∂features/∂x)ᵀ g``: ``g (..., d + a)`` at ``x (..., d)`` to ``(..., d)``;
+        an angle's entry is ``−sin x_i · g_cos + cos x_i · g_sin``."""
+        if not self.angles:
+            return g
+        n, a = len(self.rest_index), x[..., self.angle_index]
+        g_rest, g_cos, g_sin = (
+            g[..., :n],
+            g[..., n : n + len(self.angles)],
+            g[..., -len(self.angles) :],
+        )
+        out = torch.zeros(g.shape[:-1] + x.shape[-1:], dtype=g.dtype, device=g.device)
+        out[..., self.rest_index] = g_rest
+        out[..., self.angle_index] = a.cos() * g_sin - a.sin() * g_cos
+        return out
+
+    def features_jvp(self, x: Tensor, t: Tensor) -> Tensor:
+        """``(∂features/∂x) t``: a tangent ``t (..., d)`` at ``x`` (broadcast against
+        it) to ``(..., d + a)``; an angle's pair is ``(−sin x_i, cos x_i) t_i``."""
+        if not self.angles:
+            return t
+        a, ta = x[..., self.angle_index], t[..., self.angle_index]
+        return torch.cat([t[..., self.rest_index], -a.sin() * ta, a.cos() * ta], -1)
+
     def forward(self, x: Tensor) -> Tensor:
         """``(..., d) -> (..., out)``."""
+        x = self.features(x)
         for layer in self.hidden:
             x = self._act(layer(x))
         return self.out(x)
@@ -67,7 +126,7 @@ class MLP(nn.Module):
         if self.activation != "tanh":
             raise NotImplementedError("closed-form input gradient is implemented for tanh only")
         hs = []
-        h = x
+        h = self.features(x)
         for layer in self.hidden:
             h = torch.tanh(layer(h))
             hs.append(h)
@@ -76,31 +135,36 @@ class MLP(nn.Module):
         g = (1 - hs[-1] ** 2) * w
         for layer, h_prev in zip(reversed(self.hidden[1:]), reversed(hs[:-1])):
             g = (g @ layer.weight) * (1 - h_prev**2)
-        return value, g @ self.hidden[0].weight
+        return value, self.features_vjp(x, g @ self.hidden[0].weight)
 
     def activations(self, x: Tensor) -> list[Tensor]:
         """The hidden layers' outputs ``[h₁, …, h_L]``, each ``(B, h)``: what
         :meth:`input_vjp` and :meth:`input_jvp` reuse (``tanh`` only)."""
         if self.activation != "tanh":
             raise NotImplementedError("closed-form input derivatives are implemented for tanh only")
-        hs, h = [], x
+        hs, h = [], self.features(x)
         for layer in self.hidden:
             h = torch.tanh(layer(h))
             hs.append(h)
         return hs
 
-    def input_vjp(self, hs: list[Tensor], cotangent: Tensor) -> Tensor:
-        """``(∂f/∂x)ᵀ c`` at the input whose :meth:`activations` are ``hs``, in closed form
-        (``tanh``): ``c (B, out) -> (B, d)``."""
+    def input_vjp(self, hs: list[Tensor], cotangent: Tensor, x: Tensor | None = None) -> Tensor:
+        """``(∂f/∂x)ᵀ c`` at the input ``x`` whose :meth:`activations` are ``hs``, in
+        closed form (``tanh``): ``c (B, out) -> (B, d)`` (``x`` needed with ``angles``)."""
         g = cotangent @ self.out.weight
         for i in range(len(self.hidden) - 1, -1, -1):
             g = (g * (1 - hs[i] ** 2)) @ self.hidden[i].weight
-        return g
+        return self.features_vjp(self._input(x), g)
 
-    def input_jvp(self, hs: list[Tensor], tangent: Tensor) -> Tensor:
-        """``(∂f/∂x) u`` at the input whose :meth:`activations` are ``hs``, in closed form
-        (``tanh``): ``u (B, d) -> (B, out)``."""
-        t = tangent
+    def input_jvp(self, hs: list[Tensor], tangent: Tensor, x: Tensor | None = None) -> Tensor:
+        """``(∂f/∂x) u`` at the input ``x`` whose :meth:`activations` are ``hs``, in
+        closed form (``tanh``): ``u (B, d) -> (B, out)`` (``x`` needed with ``angles``)."""
+        t = self.features_jvp(self._input(x), tangent)
         for layer, h in zip(self.hidden, hs):
             t = (t @ layer.weight.T) * (1 - h**2)
         return t @ self.out.weight.T
+
+    def _input(self, x: Tensor | None) -> Tensor | None:
+        if x is None and self.angles:
+            raise ValueError("an MLP with angles needs its input x for input derivatives")
+        return x
