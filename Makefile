@@ -1,7 +1,7 @@
 # Two commands do all set-up on a fresh machine with Python ≥ 3.10:
 #   make fit    # venv + install + train the default config (CONFIG=spring_fast.yaml)
-#   make test   # venv + install + the test suite's default tier (about 4 min on two cores)
-# make test-all runs every test, the `slow` end-to-end tier too (about 8½ min).
+#   make test   # venv + install + the test suite's default tier (about 3½ min on two cores)
+# make test-all runs every test, the `slow` end-to-end tier too (about 9 min).
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
