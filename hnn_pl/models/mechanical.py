@@ -35,7 +35,25 @@ def _check(mass_eps: float, shared_trunk: bool, inverse_mass: bool) -> None:
             raise ValueError(f"{name} must be true or false: {value!r}")
 
 
-class MechanicalHNN(DynamicsModel):
+class _Mechanical:
+    """What the structured pair shares: its nets (:class:`MechanicalNets`) in the field
+    class ``FIELD``, and ``M_θ``, ``V_θ`` read from them."""
+
+    FIELD: type
+
+    def build_field(self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str):
+        return self.FIELD(_nets(self, input_dim, hidden_dim, n_hidden, activation))
+
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        """``M_θ(q)``: ``(B, k) -> (B, k, k)``."""
+        return self.field.nets.mass(q)
+
+    def potential(self, q: Tensor) -> Tensor:
+        """``V_θ(q)``: ``(B, k) -> (B,)``."""
+        return self.field.nets.potential(q)
+
+
+class MechanicalHNN(_Mechanical, DynamicsModel):
     """``H_θ = ½ pᵀ M_θ(q)⁻¹ p + V_θ(q)`` on ``y = (q, p)``: ``M_θ(q) = L Lᵀ + εI`` with
     ``L`` lower triangular from the ``k(k+1)/2`` outputs of an ``MLP`` of ``q`` (diagonal
     through ``softplus``), symmetric positive definite by construction; ``V_θ`` one more
@@ -70,26 +88,14 @@ class MechanicalHNN(DynamicsModel):
         self.mass_eps, self.shared_trunk, self.inverse_mass = mass_eps, shared_trunk, inverse_mass
         super().__init__(**kwargs)
 
-    def build_field(
-        self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
-    ) -> MechanicalHamiltonianField:
-        nets = _nets(self, input_dim, hidden_dim, n_hidden, activation)
-        return MechanicalHamiltonianField(nets)
-
-    def mass_matrix(self, q: Tensor) -> Tensor:
-        """``M_θ(q)``: ``(B, k) -> (B, k, k)``."""
-        return self.field.nets.mass(q)
-
-    def potential(self, q: Tensor) -> Tensor:
-        """``V_θ(q)``: ``(B, k) -> (B,)``."""
-        return self.field.nets.potential(q)
+    FIELD = MechanicalHamiltonianField
 
     def hamiltonian(self, y: Tensor) -> Tensor:
         """``H_θ(y)``: ``(B, 2k) -> (B,)``."""
         return self.field.hamiltonian(y)
 
 
-class MechanicalLNN(VelocityModel):
+class MechanicalLNN(_Mechanical, VelocityModel):
     """``L_θ = ½ q̇ᵀ M_θ(q) q̇ − V_θ(q)`` on ``x = (q, q̇)`` (DeLaN, Lutter et al. 2019): the
     Lagrangian twin of :class:`MechanicalHNN` (the same ``M_θ``, ``V_θ``), accelerations by
     a Cholesky solve with ``M_θ`` (:func:`~hnn_pl.nets.lagrangian.mechanical_acceleration`;
@@ -117,19 +123,7 @@ class MechanicalLNN(VelocityModel):
         self.mass_eps, self.shared_trunk, self.inverse_mass = mass_eps, shared_trunk, inverse_mass
         super().__init__(**kwargs)
 
-    def build_field(
-        self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
-    ) -> MechanicalLagrangianField:
-        nets = _nets(self, input_dim, hidden_dim, n_hidden, activation)
-        return MechanicalLagrangianField(nets)
-
-    def mass_matrix(self, q: Tensor) -> Tensor:
-        """``M_θ(q)``: ``(B, k) -> (B, k, k)``."""
-        return self.field.nets.mass(q)
-
-    def potential(self, q: Tensor) -> Tensor:
-        """``V_θ(q)``: ``(B, k) -> (B,)``."""
-        return self.field.nets.potential(q)
+    FIELD = MechanicalLagrangianField
 
     def energy(self, x: Tensor) -> Tensor:
         """``E_θ(q, q̇) = ½ q̇ᵀM_θq̇ + V_θ``: ``(B, 2k) -> (B,)``."""
