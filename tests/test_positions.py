@@ -137,3 +137,49 @@ def test_positions_refuse_windows_without_learned_states(tmp_path):
     trainer = Trainer(max_steps=1, logger=False, enable_checkpointing=False, barebones=True)
     with pytest.raises(ValueError, match="learned_states: sample"):
         trainer.fit(model, dm)
+
+
+def test_the_campaign_scores_the_structured_twin_beside_the_recipe_and_like_for_like():
+    """The spring's structured positions twin has its own rows; its criteria divide by
+    the states recipe's HNN and, like for like, by the same model on the states recipe,
+    and the recipe's own line is unchanged (synthetic records: position MSE 2 for the
+    positions HNN, 1.5 for the twin, against 1 and 3)."""
+    from hnn_pl.experiments.positions import MECHANICAL, ROWS, STRUCTURED, criteria, summarise
+
+    assert STRUCTURED == ("spring",)
+    spring = {(label, model): (config, extra) for label, model, config, extra in ROWS["spring"]}
+    assert spring[("states", "mechanical_hnn")] == ("spring_traj.yaml", MECHANICAL)
+    assert spring[("positions", "mechanical_hnn")][0] == "spring_positions_mechanical_hnn.yaml"
+    assert spring[("positions", "hnn")] == ("spring_positions.yaml", ())
+    assert ("positions, half the samples", "mechanical_hnn") in spring
+    assert not any(model == "mechanical_hnn" for _, model, _, _ in ROWS["pendulum"])
+
+    def run(row, model, mse):
+        return {
+            "task": "spring",
+            "row": row,
+            "model": model,
+            "seed": 0,
+            "position_mse": mse,
+            "energy_mse": mse,
+            "train_s": mse,
+        }
+
+    records = [
+        run("positions", "hnn", 2.0),
+        run("positions, half the samples", "hnn", 3.0),
+        run("positions", "mechanical_hnn", 1.5),
+        run("positions, half the samples", "mechanical_hnn", 6.0),
+        run("states", "hnn", 1.0),
+        run("states", "mechanical_hnn", 3.0),
+        run("finite differences", "hnn", 8.0),
+    ]
+    lines = criteria(summarise(records))
+    assert "positions / states: position MSE 2.00 (target ≤ 2)" in lines[2]
+    assert "finite differences / positions: position MSE 4.0" in lines[2]
+    assert "half the samples / all: 1.50" in lines[2]
+    twin = lines[3]
+    assert twin.startswith("- spring, the structured twin (mechanical_hnn)")
+    assert "position MSE 1.50, energy 1.50, training 1.50" in twin
+    assert "like for like (mechanical_hnn from states): position MSE 0.50" in twin
+    assert twin.endswith("half the samples / all: 4.00")

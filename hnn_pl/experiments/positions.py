@@ -10,6 +10,8 @@ positions of each held-out trajectory (:func:`~hnn_pl.evaluation.observer.observ
 - ``positions, half the samples``: the same with half of each trajectory's samples
   dropped at random (``keep_fraction: 0.5``, irregular times);
 - ``states``: ``TASK_traj.yaml`` — the states-only recipe, momenta observed;
+- the spring's structured twin, ``TASK_positions_mechanical_hnn.yaml``, on positions and
+  with half the samples, and the same model on the states recipe (like for like);
 - ``finite differences``: ``TASK_positions_fd.yaml`` — a derivative fit on finite
   differences of the same positions.
 
@@ -35,21 +37,41 @@ HALF = "--data.init_args.keep_fraction=0.5"
 #: the simulated tasks with positions configs (the real pendulum's rows differ)
 SIMULATED = ("spring", "pendulum")
 
-#: the rows: task → (label, model, config, extra CLI options)
-ROWS: dict[str, list[tuple[str, str, str, tuple[str, ...]]]] = {
-    t: [
+#: the options that put the mass-matrix-structured HNN on a config of another model (the
+#: states recipe's like-for-like row of a structured positions twin)
+MECHANICAL = (
+    "--model.class_path=hnn_pl.models.MechanicalHNN",
+    "--model.init_args.inverse_mass=true",
+    "--model.init_args.shared_trunk=false",
+)
+
+#: the simulated tasks with a structured positions twin (``TASK_positions_mechanical_hnn.yaml``)
+STRUCTURED = ("spring",)
+
+
+def _simulated_rows(t: str) -> list[tuple[str, str, str, tuple[str, ...]]]:
+    """The rows of a simulated task; with a structured twin (:data:`STRUCTURED`), its
+    positions rows and the same model on the states recipe (like for like)."""
+    rows = [
         ("positions", "hnn", f"{t}_positions.yaml", ()),
         ("positions", "baseline", f"{t}_positions_baseline.yaml", ()),
-        (
-            "positions, half the samples",
-            "hnn",
-            f"{t}_positions.yaml",
-            ("--data.init_args.keep_fraction=0.5",),
-        ),
+        ("positions, half the samples", "hnn", f"{t}_positions.yaml", (HALF,)),
         ("states", "hnn", f"{t}_traj.yaml", ()),
         ("finite differences", "hnn", f"{t}_positions_fd.yaml", ()),
     ]
-    for t in SIMULATED
+    if t in STRUCTURED:
+        twin = f"{t}_positions_mechanical_hnn.yaml"
+        rows[2:2] = [
+            ("positions", "mechanical_hnn", twin, ()),
+            ("positions, half the samples", "mechanical_hnn", twin, (HALF,)),
+        ]
+        rows.insert(5, ("states", "mechanical_hnn", f"{t}_traj.yaml", MECHANICAL))
+    return rows
+
+
+#: the rows: task → (label, model, config, extra CLI options)
+ROWS: dict[str, list[tuple[str, str, str, tuple[str, ...]]]] = {
+    t: _simulated_rows(t) for t in SIMULATED
 }
 ROWS["real_pendulum"] = [
     ("positions", "hnn", "real_pendulum_positions.yaml", ()),
@@ -217,6 +239,22 @@ def criteria(summary: list[dict]) -> list[str]:
             f"{_ratio(fd, pos, 'position_mse'):.1f}, energy {_ratio(fd, pos, 'energy_mse'):.1f} "
             f"(≥ 3); half the samples / all: {_ratio(half, pos, 'position_mse'):.2f} (≤ 2)"
         )
+        m = "mechanical_hnn"
+        twin, twin_half = (
+            _get(summary, task, "positions", m),
+            _get(summary, task, "positions, half the samples", m),
+        )
+        if twin:
+            same = _get(summary, task, "states", m)
+            out.append(
+                f"- {task}, the structured twin ({m}) from positions / the states recipe (hnn): "
+                f"position MSE {_ratio(twin, st, 'position_mse'):.2f}, energy "
+                f"{_ratio(twin, st, 'energy_mse'):.2f}, training "
+                f"{_ratio(twin, st, 'train_s'):.2f}; "
+                f"like for like ({m} from states): position MSE "
+                f"{_ratio(twin, same, 'position_mse'):.2f}; half the samples / all: "
+                f"{_ratio(twin_half, twin, 'position_mse'):.2f}"
+            )
     d = _get(summary, "real_pendulum", "positions", "dissipative")
     ds = _get(summary, "real_pendulum", "states", "dissipative")
     if d and ds and "energy_drift_slope" in d:
