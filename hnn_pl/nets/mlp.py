@@ -123,15 +123,9 @@ class MLP(nn.Module):
         ``torch.inference_mode``. ``x (batch, d)`` -> ``f (batch,)``, ``∇ₓ f (batch, d)``;
         NotImplementedError for activations other than ``tanh``.
         """
-        if self.activation != "tanh":
-            raise NotImplementedError("closed-form input gradient is implemented for tanh only")
-        hs = []
-        h = self.features(x)
-        for layer in self.hidden:
-            h = torch.tanh(layer(h))
-            hs.append(h)
+        hs = self.activations(x)
         w = self.out.weight[0]
-        value = h @ w
+        value = hs[-1] @ w
         g = (1 - hs[-1] ** 2) * w
         for layer, h_prev in zip(reversed(self.hidden[1:]), reversed(hs[:-1])):
             g = (g @ layer.weight) * (1 - h_prev**2)
