@@ -7,8 +7,9 @@ HNN's ``MSE(f_θ(y), dy/dt)``. Trajectory objective: 5-sample windows (4 RK4 ste
 each window's observed start, ``MSE`` of the integrated states. The LNN (with its default
 kinetic prior ``c = 1``) three ways: Hessian blocks in closed form (the model's, for its
 tanh MLP), by ``torch.func`` forward-over-reverse (any ``L``) and by double autograd. The
-structured models with ``M_θ`` and ``V_θ`` as two heads of one MLP (the default) and as
-two MLPs. Targets (issue 33): LNN ≤ 3× HNN, the structured models ≤ 2× HNN.
+structured models with their defaults (the factor of ``M_θ⁻¹``; ``M_θ⁻¹`` and ``V_θ`` as
+two heads of one MLP) and with two MLPs. Targets (issue 33): LNN ≤ 3× HNN, the
+structured models ≤ 2× HNN.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def make_field(kind: str) -> torch.nn.Module:
         return LagrangianField(MLP(d, 1, WIDTH), 1.0, terms=lagrangian_terms)
     if kind == "LNN (double autograd)":
         return LagrangianField(MLP(d, 1, WIDTH), 1.0, terms=lagrangian_terms_autograd)
-    nets = MechanicalNets(DOF, WIDTH, 2, "tanh", shared="two MLPs" not in kind)
+    nets = MechanicalNets(DOF, WIDTH, 2, "tanh", shared="two MLPs" not in kind, inverse=True)
     if kind.startswith("MechanicalHNN"):
         return MechanicalHamiltonianField(nets)
     return MechanicalLagrangianField(nets)

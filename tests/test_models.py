@@ -111,3 +111,28 @@ def test_submodules_are_attributes_after_import_hnn_pl():
 
     code = "import hnn_pl; hnn_pl.bump.energy_bump; hnn_pl.integrate.scipy_fun"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("objective", ["derivative", "trajectory"])
+def test_the_l1_loss_is_the_mean_absolute_error_of_either_objective(objective):
+    """``loss: l1``: ``train/loss`` is ``mean |pred − target|`` (``mse``: its square's
+    mean), on derivative pairs and on windows alike."""
+    torch.manual_seed(0)
+    models = {
+        n: HNN(input_dim=4, hidden_dim=16, loss=n, objective=objective) for n in ("mse", "l1")
+    }
+    models["l1"].load_state_dict(models["mse"].state_dict())
+    if objective == "derivative":
+        y, target = torch.randn(9, 4), torch.randn(9, 4)
+        batch, pred = (y, target), models["mse"](y)
+    else:
+        y, t = torch.randn(9, 3, 4), torch.linspace(0, 0.2, 3).expand(9, 3)
+        batch = (y, t, torch.arange(27).view(9, 3))
+        pred, target = models["mse"].integrate_windows(y[:, 0], t)[:, 1:], y[:, 1:]
+    for name, want in (
+        ("mse", (pred - target).square().mean()),
+        ("l1", (pred - target).abs().mean()),
+    ):
+        torch.testing.assert_close(models[name].training_loss(batch)["loss"], want)
+    with pytest.raises(ValueError, match="loss must be one of"):
+        HNN(input_dim=4, loss="huber")

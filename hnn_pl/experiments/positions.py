@@ -41,7 +41,6 @@ SIMULATED = ("spring", "pendulum")
 #: states recipe's like-for-like row of a structured positions twin)
 MECHANICAL = (
     "--model.class_path=hnn_pl.models.MechanicalHNN",
-    "--model.init_args.inverse_mass=true",
     "--model.init_args.shared_trunk=false",
 )
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 from torch.func import grad, jvp, vmap
 
 from hnn_pl.models.base import DynamicsModel
@@ -184,7 +184,7 @@ class VelocityModel(DynamicsModel):
         else:
             x, rates = self._batch(batch)
             k = x.shape[-1] // 2
-            parts = {"loss": nn.functional.mse_loss(self.accelerations(x), rates[..., k:])}
+            parts = {"loss": self.discrepancy(self.accelerations(x), rates[..., k:])}
         if reset is not None:
             parts["singular_fraction"] = self.field.singular_fraction
         return parts

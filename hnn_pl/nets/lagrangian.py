@@ -247,9 +247,15 @@ def mechanical_acceleration(mass: MassMatrix, potential: Potential, q: Tensor, v
 
 
 class CholeskyMass(nn.Module):
-    """``M = L Lᵀ + εI`` from a network's ``k(k+1)/2`` outputs ``raw``: ``L`` lower
-    triangular, ``raw`` placed row by row, its diagonal through ``softplus`` (positive);
-    symmetric positive definite by construction, eigenvalues ``≥ ε``.
+    """``M = L Lᵀ + εI`` from a network's ``k(k+1)/2`` outputs ``raw``: ``L = I + R``,
+    ``R`` lower triangular with ``raw`` placed row by row; symmetric positive definite by
+    construction, eigenvalues ``≥ ε``, and ``M ≈ (1 + ε) I`` for small outputs.
+
+    The diagonal is ``1 + raw``, not a positive map of ``raw``: ``softplus``'s flat tail is
+    an absorbing state (at ``L → 0`` the loss's gradient in ``raw`` vanishes), where a
+    step of a high learning rate left the spring's and the pendulum's structured models
+    on their fast recipes (3 of 5 seeds each), ``M = εI`` everywhere; ``L``'s sign is free
+    instead, and ``L = 0`` is a saddle the optimiser leaves.
 
     Args:
         dof: ``k``.
@@ -271,8 +277,8 @@ class CholeskyMass(nn.Module):
         return self.dof * (self.dof + 1) // 2
 
     def lower(self, raw: Tensor) -> Tensor:
-        """``L``: ``(B, k(k+1)/2) -> (B, k, k)``."""
-        raw = torch.where(self.diagonal, nn.functional.softplus(raw), raw)
+        """``L = I + R``: ``(B, k(k+1)/2) -> (B, k, k)``."""
+        raw = torch.where(self.diagonal, raw + 1.0, raw)
         return (raw @ self.place.to(raw.dtype)).unflatten(-1, (self.dof, self.dof))
 
     def forward(self, raw: Tensor) -> Tensor:
@@ -284,16 +290,14 @@ class CholeskyMass(nn.Module):
         eye = torch.eye(self.dof, dtype=f.dtype, device=f.device)
         return f @ f.transpose(-1, -2) + self.eps * eye
 
-    def raw_grad(self, raw: Tensor, f: Tensor, u: Tensor) -> Tensor:
+    def raw_grad(self, f: Tensor, u: Tensor) -> Tensor:
         """``∂/∂raw ½ uᵀ M u`` at fixed ``u (B, k)``: ``½|Lᵀu|²``'s gradient in ``L`` is
-        ``u (Lᵀu)ᵀ``, through the placement and ``softplus``: ``(B, k(k+1)/2)``."""
+        ``u (Lᵀu)ᵀ``, read through the placement: ``(B, k(k+1)/2)``."""
         w = (f.transpose(-1, -2) @ u[..., None])[..., 0]
-        g = (u[:, :, None] * w[:, None, :]).flatten(1) @ self.place.to(u.dtype).T
-        return torch.where(self.diagonal, g * torch.sigmoid(raw), g)
+        return (u[:, :, None] * w[:, None, :]).flatten(1) @ self.place.to(u.dtype).T
 
-    def action_tangent(self, raw: Tensor, f: Tensor, d_raw: Tensor, u: Tensor) -> Tensor:
+    def action_tangent(self, f: Tensor, d_raw: Tensor, u: Tensor) -> Tensor:
         """``dM u = dL (Lᵀu) + L (dLᵀu)`` for a tangent ``d_raw`` of ``raw``: ``(B, k)``."""
-        d_raw = torch.where(self.diagonal, d_raw * torch.sigmoid(raw), d_raw)
         df = (d_raw @ self.place.to(u.dtype)).unflatten(-1, (self.dof, self.dof))
         w = (f.transpose(-1, -2) @ u[..., None])[..., 0]
         return (df @ w[..., None] + f @ (df.transpose(-1, -2) @ u[..., None]))[..., 0]
@@ -302,13 +306,12 @@ class CholeskyMass(nn.Module):
 class MechanicalLinearization(NamedTuple):
     """``M_θ``, ``V_θ`` at one batch of ``q (B, k)`` with what their ``q``-derivatives need,
     in closed form (``tanh`` networks): the networks' activations ``hs`` (one list per
-    network), the factor's raw outputs ``raw``, the factor ``f`` and the matrix
+    network), the factor ``f`` and the matrix
     ``mass = f fᵀ + εI`` it gives: ``M_θ``, or ``M_θ⁻¹`` for ``nets.inverse``."""
 
     nets: MechanicalNets
     q: Tensor
     hs: tuple[list[Tensor], ...]
-    raw: Tensor
     f: Tensor
     mass: Tensor
 
@@ -316,7 +319,7 @@ class MechanicalLinearization(NamedTuple):
         """``c ∂/∂q ½ uᵀ A(q) u − ∇V_θ(q)`` at fixed ``u (B, k)``, ``A = f fᵀ + εI`` the
         factor's matrix and ``c = kinetic``: one closed-form vector–Jacobian product per
         network: ``(B, k)``."""
-        g = kinetic * self.nets.cholesky.raw_grad(self.raw, self.f, u)
+        g = kinetic * self.nets.cholesky.raw_grad(self.f, u)
         minus_one = -torch.ones_like(g[:, :1])
         q = self.q
         if self.nets.shared:
@@ -329,7 +332,7 @@ class MechanicalLinearization(NamedTuple):
         """``d/dε A(q + ε dq) u`` of the factor's matrix ``A``: ``(B, k), (B, k) -> (B, k)``."""
         net = self.nets.net if self.nets.shared else self.nets.mass_net
         d_raw = net.input_jvp(self.hs[0], dq, self.q)[:, : self.nets.cholesky.size]
-        return self.nets.cholesky.action_tangent(self.raw, self.f, d_raw, u)
+        return self.nets.cholesky.action_tangent(self.f, d_raw, u)
 
 
 # ------------------------------------------------------------------ fields
@@ -560,7 +563,7 @@ class MechanicalNets(nn.Module):
             hs = (self.mass_net.activations(q), self.potential_net.activations(q))
             raw = self.mass_net.out(hs[0][-1])
         f = self.cholesky.lower(raw)
-        return MechanicalLinearization(self, q, hs, raw, f, self.cholesky.from_factor(f))
+        return MechanicalLinearization(self, q, hs, f, self.cholesky.from_factor(f))
 
 
 class MechanicalHamiltonianField(nn.Module):
