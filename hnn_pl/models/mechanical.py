@@ -73,7 +73,7 @@ class MechanicalHNN(_Mechanical, DynamicsModel):
     Args:
         mass_eps: ``ε``, the floor of the factor matrix's eigenvalues (``M_θ``'s, or
             ``M_θ⁻¹``'s with ``inverse_mass``).
-        shared_trunk: ``M_θ``'s factor and ``V_θ`` as two heads of one MLP
+        shared_trunk: the factor and ``V_θ`` as two heads of one MLP
             ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
         inverse_mass: learn the factor of ``M_θ⁻¹`` (default) or of ``M_θ``.
         **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
@@ -108,7 +108,7 @@ class MechanicalLNN(_Mechanical, VelocityModel):
 
     Args:
         mass_eps: ``ε``, the floor of the factor matrix's eigenvalues.
-        shared_trunk: ``M_θ``'s factor and ``V_θ`` as two heads of one MLP
+        shared_trunk: the factor and ``V_θ`` as two heads of one MLP
             ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
         inverse_mass: learn the factor of ``M_θ⁻¹`` (default) or of ``M_θ``.
         **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
