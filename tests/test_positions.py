@@ -183,3 +183,29 @@ def test_the_campaign_scores_the_structured_twin_beside_the_recipe_and_like_for_
     assert "position MSE 1.50, energy 1.50, training 1.50" in twin
     assert "like for like (mechanical_hnn from states): position MSE 0.50" in twin
     assert twin.endswith("half the samples / all: 4.00")
+
+
+def test_the_real_pendulum_criteria_divide_the_angles_only_model_by_the_states_one():
+    """The real pendulum's line: the angles-only dissipative model's slope against the
+    recording's, its position MSE and its training time against the states-only
+    dissipative model's (synthetic records: slope −0.009 of −0.012, position MSE 3 against
+    2, training 50 s against 10 s)."""
+    from hnn_pl.experiments.positions import criteria, summarise
+
+    def run(row, mse, train_s):
+        return {
+            "task": "real_pendulum",
+            "row": row,
+            "model": "dissipative",
+            "seed": 0,
+            "position_mse": mse,
+            "energy_mse": 0.1,
+            "energy_drift_slope": -0.009,
+            "true_energy_drift_slope": -0.012,
+            "train_s": train_s,
+        }
+
+    (line,) = criteria(summarise([run("positions", 3.0, 50.0), run("states", 2.0, 10.0)]))[2:]
+    assert "energy slope -0.009 per s, 0.75 of the recording's -0.012" in line
+    assert "position MSE 1.50 of the states-only dissipative's (≤ 1.5)" in line
+    assert line.endswith("training 5.00 (≤ 2)")

@@ -261,7 +261,8 @@ def criteria(summary: list[dict]) -> list[str]:
         out.append(
             f"- real_pendulum, dissipative from the angle alone: energy slope {slope:.4g} per s, "
             f"{slope / truth:.2f} of the recording's {truth:.4g} (target 0.75–1.25); position "
-            f"MSE {_ratio(d, ds, 'position_mse'):.2f} of the states-only dissipative's (≤ 1.5)"
+            f"MSE {_ratio(d, ds, 'position_mse'):.2f} of the states-only dissipative's (≤ 1.5), "
+            f"training {_ratio(d, ds, 'train_s'):.2f} (≤ 2)"
         )
     return out
 
