@@ -199,3 +199,17 @@ def test_scores_in_both_coordinates(tmp_path):
     assert float(frozen.min()) > 1e-2
     blowup = dm.rollout_errors(lambda t, y: 50 * y * y.abs())
     assert bool(((blowup > 0.1) & (blowup <= 1 + 1e-8)).all())
+
+
+def test_a_trajectory_beyond_the_step_budget_scores_as_stopped(tmp_path):
+    """The exact field within a budget of 3 dopri5 steps per test trajectory stops
+    short of the horizon (0.6 s at tolerance 1e-7 takes more): each row counts error 1
+    from where it stopped, so its geometric mean lies far above the exact score and at
+    most 1; with the default budget the same field scores below 1e-5."""
+    from hnn_pl.data.chain_pendulum import SCORE_MAX_STEPS
+
+    dm = _data(tmp_path, dtype="float64")
+    assert SCORE_MAX_STEPS >= 1000
+    assert float(dm.rollout_errors(dm.chain).max()) < 1e-5
+    cut = dm.rollout_errors(dm.chain, max_steps=3)
+    assert bool(((cut > 1e-3) & (cut <= 1 + 1e-8)).all())
