@@ -205,7 +205,7 @@ def test_the_docs_include_the_tables_or_say_they_are_not_yet_measured(tmp_path):
     ],
 )
 def test_the_structured_models_keep_the_energy_on_the_fast_recipes(task, model, seed):
-    """With their defaults (``M_θ⁻¹``'s factor ``I + R``, two networks) the structured
+    """With their defaults (``M_θ⁻¹``'s factor ``I + R``, one shared network) the structured
     models train on the fast recipes' high learning rate: energy MSE ≤ 1e-3 on seeds where a
     ``softplus`` diagonal collapsed to ``M_θ = εI`` or the ``M_θ`` form diverged (energy
     MSE 87 to 1.6e4)."""
