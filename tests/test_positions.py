@@ -185,21 +185,21 @@ def test_the_campaign_scores_the_structured_twin_beside_the_recipe_and_like_for_
     assert twin.endswith("half the samples / all: 4.00")
 
 
-def test_the_half_samples_rows_keep_the_windows_duration(tmp_path):
-    """Half the samples: windows of ``K // 2`` samples for the config's ``K`` (the base's
-    when the config does not set it; at least 2), so that a window spans about the
-    same time; a config without windows gets the thinning alone."""
-    from hnn_pl.experiments.positions import HALF, ROWS, half_the_samples
+def test_the_half_samples_rows_keep_the_windows_duration():
+    """Half the samples: windows of half the config's samples, so that a window spans
+    about the same time as on all of them."""
+    from hnn_pl.commands.config_paths import config_chain, resolve_config
+    from hnn_pl.experiments.positions import HALF, ROWS
 
+    assert HALF[0] == "--data.init_args.keep_fraction=0.5"
     for task in ("spring", "pendulum"):
-        halves = [extra for label, _, _, extra in ROWS[task] if label.endswith("half the samples")]
-        assert halves and all(x == (HALF, "--data.init_args.window=5") for x in halves)
-    base = tmp_path / "base.yaml"
-    base.write_text("data: {init_args: {window: 3}}\n")
-    (tmp_path / "child.yaml").write_text("base: base.yaml\nmodel: {init_args: {lr: 0.1}}\n")
-    assert half_the_samples(str(tmp_path / "child.yaml")) == (HALF, "--data.init_args.window=2")
-    (tmp_path / "none.yaml").write_text("data: {init_args: {batch_size: 4}}\n")
-    assert half_the_samples(str(tmp_path / "none.yaml")) == (HALF,)
+        halves = [(c, x) for label, _, c, x in ROWS[task] if label.endswith("half the samples")]
+        assert halves
+        for config, extra in halves:
+            window = None
+            for _, mapping in config_chain(resolve_config(config)):
+                window = ((mapping.get("data") or {}).get("init_args") or {}).get("window", window)
+            assert extra == HALF and HALF[1] == f"--data.init_args.window={window // 2}"
 
 
 def test_the_real_pendulum_criteria_divide_the_angles_only_model_by_the_states_one():
