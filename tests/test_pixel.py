@@ -80,11 +80,13 @@ def test_generation_is_deterministic_cached_and_seeded(tmp_path, monkeypatch):
     def boom(self):
         raise AssertionError("generate() called although the cache holds the data")
 
-    monkeypatch.setattr(PixelPendulumData, "generate", boom)
-    b = _data(tmp_path)
+    # a context of its own: ``monkeypatch.undo()`` would also undo conftest's removal of
+    # PL_GLOBAL_SEED, and a seed left in the environment would then seed ``d`` below
+    with monkeypatch.context() as m:
+        m.setattr(PixelPendulumData, "generate", boom)
+        b = _data(tmp_path)
     for key in ("x_train", "dx_train", "y_train", "x_test", "test_y", "rollout_x"):
         assert torch.equal(getattr(a, key), getattr(b, key)), key
-    monkeypatch.undo()
     c = _data(tmp_path, seed=1)
     assert c.cache_path != a.cache_path
     assert not torch.equal(a.y_train, c.y_train)
