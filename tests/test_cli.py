@@ -250,8 +250,9 @@ def test_a_twin_config_differs_from_its_hnn_config_in_model_class_and_run_name(c
 def short_rollouts(monkeypatch):
     """The callbacks' protocols over their first 5 held-out starts and a tenth of the
     horizon (a protocol on the held-out trajectories' own times, ``t_end=None``: their
-    first 5, whole): the same code, a small part of its work (the protocols' numbers are
-    tested elsewhere; here every config must run)."""
+    first 5, whole; the chain pendulum's simulated 3 s: the system's truth over 0.3 s):
+    the same code, a small part of its work (the protocols' numbers are tested
+    elsewhere; here every config must run)."""
     import hnn_pl.callbacks
 
     real = hnn_pl.callbacks.task_protocol
@@ -260,6 +261,8 @@ def short_rollouts(monkeypatch):
         p = real(task, name, overrides)
         if not hasattr(p, "max_starts"):
             return p
+        if p.t_end is None and task.startswith("chain"):
+            return p.replace(max_starts=5, t_end=0.3, n_points=11)
         if p.t_end is None:
             return p.replace(max_starts=5)
         return p.replace(max_starts=5, t_end=p.t_end / 10, n_points=max(2, p.n_points // 10))

@@ -85,9 +85,28 @@ def test_a_failed_run_is_recorded_and_keeps_the_others(tmp_path):
 def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     tmp_path, monkeypatch
 ):
+    """Every model on 100 chunks, scored beside the published numbers. Two steps leave
+    stiff fields (the Lagrangians' above all): their scoring gets 60 dopri5 steps a
+    trajectory instead of 10,000, a row beyond them counting as stopped; the chaos
+    floor, the same for every model, is computed once."""
+    from hnn_pl.data import ChainPendulumData
+
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(priors, "_FLOORS", {})
+    score, floor, floors = ChainPendulumData.rollout_errors, ChainPendulumData.chaos_floor, []
+
+    def budget(self, field, **kwargs):
+        return score(self, field, **{"max_steps": 60, **kwargs})
+
+    def counted(self, *args, **kwargs):
+        floors.append(1)
+        return floor(self, *args, **kwargs)
+
+    monkeypatch.setattr(ChainPendulumData, "rollout_errors", budget)
+    monkeypatch.setattr(ChainPendulumData, "chaos_floor", counted)
     argv = ["--tasks", "chain2", "--max-steps", "2", "--seeds", "1", "--workers", "0"]
     assert command.main([*argv, "--out", "C.md"]) == 0
+    assert len(floors) == 1
     data = json.loads((tmp_path / "C.json").read_text())
     assert data["meta"]["recipe"] == "priors" and data["meta"]["max_steps"] == 2
     runs = {r["model"]: r for r in data["runs"]}

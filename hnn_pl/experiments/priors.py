@@ -231,12 +231,26 @@ def scores(task: str, model: Any, dm: Any) -> dict[str, float]:
     if task in CHAIN_TASKS:
         return {
             "rollout_error": float(dm.rollout_errors(model).quantile(0.5)),
-            "chaos_floor": float(dm.chaos_floor().quantile(0.5)),
+            "chaos_floor": chaos_floor_median(dm),
         }
     from hnn_pl.evaluation import evaluate, task_protocol
 
     metrics, _ = evaluate(model, dm, task_protocol(task, "clean"))
     return {k: metrics.get(k) for k in STATE_SCORES}
+
+
+#: the chaos floors' medians computed in this process, by the data's cache parameters
+_FLOORS: dict[str, float] = {}
+
+
+def chaos_floor_median(dm: Any) -> float:
+    """The median over ``dm``'s test trajectories of its chaos floor (the true system's,
+    the same for every model): computed once per data set in a process, so a campaign's
+    rows on one data set share it."""
+    key = json.dumps(dm.cache_params(), sort_keys=True, default=str)
+    if key not in _FLOORS:
+        _FLOORS[key] = float(dm.chaos_floor().quantile(0.5))
+    return _FLOORS[key]
 
 
 def collect(
