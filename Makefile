@@ -18,10 +18,14 @@ STAMP := $(VENV)/.installed
 
 venv: $(STAMP)
 
+# pip compiles every installed file on one core (over half of its time); compileall spreads
+# that over every core. A file written for a newer Python (torch ships one) does not
+# compile: pip ignores it, and so does this step (-qq, and its exit status).
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet "$(TORCH)" $(TORCH_INDEX)
-	$(BIN)/pip install --quiet -e ".[dev,docs]"
+	$(BIN)/pip install --quiet --no-compile "$(TORCH)" $(TORCH_INDEX)
+	$(BIN)/pip install --quiet --no-compile -e ".[dev,docs]"
+	$(BIN)/python -m compileall -qq -j 0 $(VENV)/lib || true
 	touch $(STAMP)
 
 fit: $(STAMP)
