@@ -45,6 +45,8 @@ def _model(cls=HNN, **kw):
         ({"grad_clip": 0.0}, "grad_clip"),
         ({"on_nonfinite": "ignore"}, "on_nonfinite"),
         ({"hidden_dim": 0}, "hidden_dim"),
+        ({"polish_steps": -1}, "polish_steps"),
+        ({"polish_steps": 2.0}, "polish_steps"),
     ],
 )
 def test_bad_recipe_options_fail_at_construction(kwargs, match):
@@ -86,6 +88,71 @@ def test_lbfgs_fits_a_full_batch_faster_than_adam(tmp_path, cls):
     _fit(adam, dm, 20)
     _fit(lbfgs, dm, 20)
     assert loss(lbfgs) < loss(adam) < start
+
+
+class _Seen(HNN):
+    """Records each objective evaluation's rows and whether it was polishing."""
+
+    def training_loss(self, batch):
+        self.seen.append((len(batch[0]), self.polishing))
+        return super().training_loss(batch)
+
+
+def test_polishing_ends_the_fit_with_lbfgs_on_the_whole_training_set(tmp_path):
+    """The last ``polish_steps`` of ``max_steps`` are L-BFGS iterations on all the
+    training rows (mini-batches of 8 before), of the squared error though the loss is
+    ``l1``; the cosine schedule ends with the first optimiser's steps; the polished
+    field fits the data better than the same fit stopped before polishing."""
+    dm = _dm(tmp_path)
+    dm.setup()
+    rows = len(dm.x_train)
+    kw = dict(loss="l1", lr=1e-2, schedule="cosine")
+    polished = _model(_Seen, polish_steps=20, **kw)
+    polished.seen = []
+    trainer = _fit(polished, _dm(tmp_path, batch_size=8), 60)
+    assert trainer.global_step == 60 and not polished.polishing
+    adam, lbfgs = trainer.optimizers
+    assert isinstance(lbfgs, torch.optim.LBFGS)
+    assert lbfgs.state[lbfgs.param_groups[0]["params"][0]]["n_iter"] == 20
+    assert adam.param_groups[0]["lr"] < 1e-2 * 1e-3  # the schedule spans the 40 steps
+    first = [n for n, p in polished.seen if not p]
+    assert set(first) == {8, rows % 8 or 8} and len(first) == 40
+    polishing = [n for n, p in polished.seen if p]  # one or more evaluations an iteration
+    assert set(polishing) == {rows} and len(polishing) >= 20
+    plain = _model(_Seen, **kw)
+    plain.seen = []
+    _fit(plain, _dm(tmp_path, batch_size=8), 40)
+
+    def loss(m):
+        with torch.no_grad():
+            return float(torch.nn.functional.mse_loss(m(dm.x_train), dm.dx_train))
+
+    assert loss(polished) < 0.5 * loss(plain)
+
+
+class _Tiny(HNN):
+    """The objective scaled by 1e-12, as small as a trained field's and smaller."""
+
+    def training_loss(self, batch):
+        return {"loss": 1e-12 * super().training_loss(batch)["loss"]}
+
+
+@pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
+def test_polishing_moves_the_weights_however_small_the_objective(tmp_path, optimizer):
+    """torch's default tolerances would stop L-BFGS before its first step here (a trained
+    field's polishing did no more than that): every polishing step moves the weights."""
+    one = _model(_Tiny, optimizer=optimizer)
+    _fit(one, _dm(tmp_path), 1)
+    more = _model(_Tiny, optimizer=optimizer, polish_steps=3)
+    _fit(more, _dm(tmp_path), 4)
+    moved = [not torch.equal(a, b) for a, b in zip(one.parameters(), more.parameters())]
+    assert all(moved)
+
+
+@pytest.mark.parametrize("steps", [6, 4])
+def test_polishing_needs_steps_before_it(tmp_path, steps):
+    with pytest.raises(ValueError, match="polish_steps=6 needs trainer.max_steps larger"):
+        _fit(_model(polish_steps=6), _dm(tmp_path), steps)
 
 
 def test_a_non_finite_loss_stops_before_the_update(tmp_path):

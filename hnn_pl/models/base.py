@@ -636,8 +636,9 @@ class DynamicsModel(RecipeModel):
 
     def discrepancy(self, pred: Tensor, target: Tensor) -> Tensor:
         """The training objective's ``loss`` between two tensors of one shape: the mean
-        of ``(pred − target)²`` (``"mse"``) or of ``|pred − target|`` (``"l1"``)."""
-        return DISCREPANCIES[self.loss](pred, target)
+        of ``(pred − target)²`` (``"mse"``, and while ``polishing``) or of
+        ``|pred − target|`` (``"l1"``)."""
+        return DISCREPANCIES["mse" if self.polishing else self.loss](pred, target)
 
     def _eval_pair(self, batch: tuple[Tensor, ...]) -> tuple[Tensor, Tensor]:
         """(prediction, target) of a held-out batch: ``dy/dt``, or a window's samples
