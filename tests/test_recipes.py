@@ -149,10 +149,18 @@ def test_polishing_moves_the_weights_however_small_the_objective(tmp_path, optim
     assert all(moved)
 
 
-@pytest.mark.parametrize("steps", [6, 4])
-def test_polishing_needs_steps_before_it(tmp_path, steps):
-    with pytest.raises(ValueError, match="polish_steps=6 needs trainer.max_steps larger"):
-        _fit(_model(polish_steps=6), _dm(tmp_path), steps)
+def test_a_run_shorter_than_its_polishing_polishes_its_second_half(tmp_path):
+    """A smoke run of a polishing config (``max_steps`` ≤ ``polish_steps``) still runs,
+    says so, and polishes its last half; without ``max_steps`` polishing is refused."""
+    model = _model(_Seen, polish_steps=50)
+    model.seen = []
+    with pytest.warns(UserWarning, match="polish_steps=50 is not less than .*=5: the last 2"):
+        trainer = _fit(model, _dm(tmp_path), 5)
+    assert trainer.global_step == 5
+    assert [p for _, p in model.seen][:3] == [False] * 3 and all(p for _, p in model.seen[3:])
+    trainer = L.Trainer(max_epochs=1, precision="64-true", **QUIET_TRAINER)
+    with pytest.raises(ValueError, match="polish_steps=50 needs trainer.max_steps"):
+        trainer.fit(_model(polish_steps=50), _dm(tmp_path))
 
 
 def test_a_non_finite_loss_stops_before_the_update(tmp_path):

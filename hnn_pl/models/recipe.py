@@ -15,6 +15,7 @@ from typing import Any
 
 import lightning as L
 import torch
+from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor
 
 from hnn_pl.safe_io import (
@@ -86,8 +87,10 @@ class RecipeModel(L.LightningModule):
         grad_clip: clip the gradient's global norm to this value (``None``: off).
         on_nonfinite: ``"stop"`` or ``"skip"``.
         polish_steps: L-BFGS iterations on the whole training set that end the fit
-            (above; 0: none). Needs ``trainer.max_steps`` larger, and data that serve
-            their rows in one object (:class:`~hnn_pl.data.base.TensorBatches`).
+            (above; 0: none). Needs ``trainer.max_steps`` (a shorter run, a smoke run
+            of a polishing config, polishes its second half, with a warning), one
+            process, and data that serve their rows in one object
+            (:class:`~hnn_pl.data.base.TensorBatches`).
     """
 
     def __init__(
@@ -234,6 +237,12 @@ class RecipeModel(L.LightningModule):
 
     # ------------------------------------------------------------------ optimiser
 
+    def _polish_count(self) -> int:
+        """This fit's polishing steps: ``polish_steps``, or half of a ``max_steps`` not
+        larger."""
+        polish, most = self.recipe["polish_steps"], self.trainer.max_steps
+        return most // 2 if polish and most and 0 < most <= polish else polish
+
     def _total_steps(self) -> int:
         """The first optimiser's steps: ``max_steps`` (else the epochs' batches ×
         ``inner_steps``) less the polishing steps."""
@@ -241,7 +250,7 @@ class RecipeModel(L.LightningModule):
             total = self.trainer.max_steps
         else:
             total = int(self.trainer.estimated_stepping_batches) * self.recipe["inner_steps"]
-        return max(1, total - self.recipe["polish_steps"])
+        return max(1, total - self._polish_count())
 
     @staticmethod
     def _lbfgs(params: list[Tensor], lr: float) -> torch.optim.LBFGS:
@@ -260,11 +269,16 @@ class RecipeModel(L.LightningModule):
 
     def on_fit_start(self) -> None:
         self._full_batch = None  # gathered at the first polishing step, from this fit's data
-        polish = self.recipe["polish_steps"]
-        if polish and not (self.trainer.max_steps and self.trainer.max_steps > polish):
+        polish, most = self.recipe["polish_steps"], self.trainer.max_steps
+        if polish and not (most and most > 0):
             raise ValueError(
-                f"model.init_args.polish_steps={polish} needs trainer.max_steps larger "
-                f"(got {self.trainer.max_steps}): they are the last steps of max_steps"
+                f"model.init_args.polish_steps={polish} needs trainer.max_steps: they are "
+                "the last steps of max_steps"
+            )
+        if polish and most <= polish:
+            rank_zero_warn(
+                f"model.init_args.polish_steps={polish} is not less than trainer.max_steps="
+                f"{most}: the last {most // 2} steps polish"
             )
         if polish and self.trainer.world_size > 1:
             raise ValueError("model.init_args.polish_steps needs one process (L-BFGS: full batch)")
