@@ -149,6 +149,42 @@ def test_polishing_moves_the_weights_however_small_the_objective(tmp_path, optim
     assert all(moved)
 
 
+def test_polishing_is_lbfgs_with_its_whole_line_search(tmp_path):
+    """P polishing steps reach the weights of one torch L-BFGS call of P iterations from
+    where the first optimiser left them: the same line searches (a one-iteration step
+    with torch's default ``max_eval`` had none, and kept its start whenever the first
+    trial was no better)."""
+    polished = _model(polish_steps=8, loss="l1", lr=1e-2)
+    _fit(polished, _dm(tmp_path), 10)
+    start = _model(loss="l1", lr=1e-2)
+    _fit(start, _dm(tmp_path), 2)  # early: its line searches take several evaluations
+    dm = _dm(tmp_path)
+    dm.setup()
+    batch = dm.train_dataloader().tensors
+    opt = torch.optim.LBFGS(
+        list(start.parameters()),
+        max_iter=8,
+        max_eval=8 * 26,
+        history_size=50,
+        line_search_fn="strong_wolfe",
+        tolerance_grad=0.0,
+        tolerance_change=0.0,
+    )
+
+    def closure():
+        opt.zero_grad()
+        start.polishing = True
+        loss = start.training_loss(batch)["loss"]
+        start.polishing = False
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    assert opt.state[opt._params[0]]["func_evals"] > 9  # some line searches took two or more
+    for a, b in zip(polished.parameters(), start.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-12)
+
+
 def test_a_run_shorter_than_its_polishing_polishes_its_second_half(tmp_path):
     """A smoke run of a polishing config (``max_steps`` ≤ ``polish_steps``) still runs,
     says so, and polishes its last half; without ``max_steps`` polishing is refused."""

@@ -30,6 +30,8 @@ OPTIMIZERS = ("adam", "adamw", "lbfgs")
 SCHEDULES = ("constant", "cosine", "onecycle")
 #: skipped non-finite steps (``on_nonfinite="skip"``) after which the fit stops anyway
 MAX_SKIPS = 10
+#: objective evaluations an L-BFGS step's strong-Wolfe line search may take (torch's own)
+MAX_LINE_SEARCH = 25
 
 
 def is_count(value: Any, least: int = 1) -> bool:
@@ -254,13 +256,16 @@ class RecipeModel(L.LightningModule):
 
     @staticmethod
     def _lbfgs(params: list[Tensor], lr: float) -> torch.optim.LBFGS:
-        """One iteration a step, every step taken: torch's tolerances (a gradient of max
-        1e-7, a squared norm or a change of 1e-9) would end a trained field's polishing
-        at its first step, its objective ~1e-6, without moving a weight."""
+        """One iteration a step, with a whole line search, every step taken. torch's
+        defaults would cripple both: ``max_eval`` (1.25 ``max_iter``) leaves a one-iteration
+        step no evaluation for its line search, which then keeps the start whenever the
+        first trial is no better; and its tolerances (a gradient of max 1e-7, a squared
+        norm or a change of 1e-9) stop it at a trained field's objective of ~1e-6."""
         return torch.optim.LBFGS(
             params,
             lr=lr,
             max_iter=1,
+            max_eval=1 + MAX_LINE_SEARCH,
             history_size=50,
             line_search_fn="strong_wolfe",
             tolerance_grad=0.0,
