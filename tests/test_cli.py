@@ -225,6 +225,7 @@ _OWN_RECIPE = {
     "spring_positions_mechanical_hnn": (("trainer", "max_steps"), ("data", "batch_size")),
     "chain2_lnn": (("model", "loss"),),
     "chain2_100_lnn": (("model", "loss"),),
+    "chain2_100_mechanical_hnn": (("trainer", "max_steps"), ("model", "polish_steps")),
 }
 
 

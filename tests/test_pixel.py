@@ -404,7 +404,7 @@ def test_checkpoint_round_trip_decodes_the_same_rollout(fitted):
     config, _, cli = fitted
     cls = AutoencoderBaseline if "baseline" in config else AutoencoderHNN
     loaded = cls.load_from_checkpoint(cli.trainer.checkpoint_callback.best_model_path)
-    assert len(loaded.hparams) == 21  # 15 model arguments and 6 of the training recipe
+    assert len(loaded.hparams) == 22  # 15 model arguments and 7 of the training recipe
     assert all(loaded.hparams[k] == cli.model.hparams[k] for k in loaded.hparams)
     x0 = cli.datamodule.rollout_x[0]
     z_a, x_a = loaded.rollout(x0, 30, method="rk4")
