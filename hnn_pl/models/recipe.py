@@ -291,15 +291,16 @@ class RecipeModel(L.LightningModule):
     def configure_optimizers(self) -> Any:
         r = self.recipe
         groups = self.param_groups()
+        params = [p for g in groups for p in g["params"]]
         if r["optimizer"] == "lbfgs":
-            opt = self._lbfgs([p for g in groups for p in g["params"]], r["lr"])
+            opt = self._lbfgs(params, r["lr"])
         else:
             cls = torch.optim.AdamW if r["optimizer"] == "adamw" else torch.optim.Adam
             opt = cls(groups, lr=r["lr"])
         first = self._first_optimizer(opt)
         if not r["polish_steps"]:
             return first
-        return [first, {"optimizer": self._lbfgs([p for g in groups for p in g["params"]], 1.0)}]
+        return [first, {"optimizer": self._lbfgs(params, 1.0)}]
 
     def _first_optimizer(self, opt: torch.optim.Optimizer) -> dict[str, Any]:
         """``opt`` with its schedule (:class:`RecipeModel`), as Lightning takes them."""
@@ -358,6 +359,31 @@ class RecipeModel(L.LightningModule):
             "Lower model.init_args.lr, set model.init_args.grad_clip, or on_nonfinite: skip."
         )
 
+    def _lbfgs_step(
+        self, opt: Any, batch: Any, groups: list[dict[str, Any]], polishing: bool = False
+    ) -> dict[str, Tensor]:
+        """One L-BFGS iteration on ``batch``, weight decay as the loss term :meth:`_l2`
+        of ``groups``; ``polishing``: the objective in its squared form. A non-finite
+        loss or gradient always stops."""
+        parts: dict[str, Tensor] = {}
+
+        def closure() -> Tensor:
+            nonlocal parts
+            opt.zero_grad()
+            self.polishing = polishing
+            try:
+                parts = self.training_loss(batch)
+            finally:
+                self.polishing = False
+            self._nonfinite(parts, can_skip=False)
+            loss = parts["loss"] + self._l2(groups)
+            self.manual_backward(loss)
+            self._nonfinite(parts, can_skip=False, gradients=True)
+            return loss
+
+        opt.step(closure)
+        return parts
+
     def _polish_step(self, opt: Any) -> dict[str, Tensor]:
         """One L-BFGS iteration of the polishing (:class:`RecipeModel`) on the whole
         training set, the objective in its squared form, without weight decay."""
@@ -369,23 +395,7 @@ class RecipeModel(L.LightningModule):
                     "object (hnn_pl's DataModules do)"
                 )
             self._full_batch = tuple(t.to(self.device) for t in rows)
-        parts: dict[str, Tensor] = {}
-
-        def closure() -> Tensor:
-            nonlocal parts
-            opt.zero_grad()
-            self.polishing = True
-            try:
-                parts = self.training_loss(self._full_batch)
-            finally:
-                self.polishing = False
-            self._nonfinite(parts, can_skip=False)
-            self.manual_backward(parts["loss"])
-            self._nonfinite(parts, can_skip=False, gradients=True)
-            return parts["loss"]
-
-        opt.step(closure)
-        return parts
+        return self._lbfgs_step(opt, self._full_batch, [], polishing=True)
 
     def training_step(self, batch: Any, batch_idx: int) -> None:
         opts, sched = self.optimizers(), self.lr_schedulers()
@@ -401,18 +411,7 @@ class RecipeModel(L.LightningModule):
                 parts = self._polish_step(polisher)
                 continue
             if r["optimizer"] == "lbfgs":
-
-                def closure() -> Tensor:
-                    nonlocal parts
-                    opt.zero_grad()
-                    parts = self.training_loss(batch)
-                    self._nonfinite(parts, can_skip=False)
-                    loss = parts["loss"] + self._l2(groups)
-                    self.manual_backward(loss)
-                    self._nonfinite(parts, can_skip=False, gradients=True)
-                    return loss
-
-                opt.step(closure)
+                parts = self._lbfgs_step(opt, batch, groups)
             else:
                 opt.zero_grad()
                 parts = self.training_loss(batch)
