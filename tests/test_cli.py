@@ -223,9 +223,12 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
 #: twins with a recipe of their own: the settings they may set apart from their HNN config
 _OWN_RECIPE = {
     "spring_positions_mechanical_hnn": (("trainer", "max_steps"), ("data", "batch_size")),
-    "chain2_lnn": (("model", "loss"),),
-    "chain2_100_lnn": (("model", "loss"),),
-    "chain2_100_mechanical_hnn": (("trainer", "max_steps"), ("model", "polish_steps")),
+    **{f"chain{n}{size}_lnn": (("model", "loss"),) for n in (2, 3) for size in ("", "_100")},
+    **{
+        f"chain{n}{size}_mechanical_hnn": (("trainer", "max_steps"), ("model", "polish_steps"))
+        for n in (2, 3)
+        for size in ("", "_100")
+    },
 }
 
 

@@ -123,7 +123,7 @@ def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     for model, published in (("baseline", "2.10e-01 (NeuralODE)"), ("hnn", "2.30e-02 (HNN)")):
         assert f"| chain2 | 100 chunks | {model} | 1 | " in page
         assert published in page
-    assert "1.25e-02 (DeLaN)" in page and "one value for every row): 5.6" in page
+    assert "1.25e-02 (DeLaN)" in page and "one value for every row of it): chain2 5.6" in page
     assert ", published 5.70e-05." in page
     assert "## Published numbers" in page and "| 800 | 5.60e-02 | 8.30e-04 |" in page
 
@@ -136,14 +136,21 @@ def test_summaries_are_medians_and_worst_and_the_targets_read_them():
     records += [{"task": "chain2", "data": "800 chunks", "model": "lnn", "seed": 0, "error": "x"}]
     for r in records[:3]:
         r.update(chaos_floor=5.6e-5, train_s=10.0)
+    three = {"task": "chain3", "data": "800 chunks", "model": "hnn", "seed": 0}
+    records += [{**three, "rollout_error": 2e-4, "chaos_floor": 9.1e-5, "train_s": 20.0}]
     summary = priors.summarise(records)
-    hnn, lnn = summary
+    hnn, lnn, hnn3 = summary
     assert hnn["rollout_error"] == (6e-4, 1e-3) and hnn["seeds"] == 3 and hnn["failed"] == 0
     assert lnn["seeds"] == 0 and lnn["failed"] == 1 and "rollout_error" not in lnn
     page = priors.render(records, {"command": "c", "machine": "m", "wall_s": 1.0})
     assert "- 800 chunks, hnn: 6.00e-04 (target ≤ 8.30e-04, the published HNN): met" in page
     assert "- chaos floor: 5.60e-05, 2% from the published 5.70e-05 (target ≤ 30%): met" in page
     assert "Smoke run" not in page
+    # 3 links: no published model, its own floor, no targets
+    assert hnn3["rollout_error"] == (2e-4, 2e-4)
+    assert "| chain3 | 800 chunks | hnn | 1 | 2.00e-04 (2.00e-04) | — | 20 |" in page
+    assert "chain2 5.60e-05, published 5.70e-05; chain3 9.10e-05, published 9.51e-05." in page
+    assert page.count("- 800 chunks, hnn:") == 1
 
 
 def test_a_lagrangian_model_without_the_data_s_system_is_refused():

@@ -117,8 +117,8 @@ def _run_arguments(parser: ArgumentParser) -> None:
         default=None,
         choices=[*paper.PAPER, *PRIORS_ONLY],
         help="default: the state tasks (recipe traj: those with traj configs; recipe priors: "
-        "spring pendulum chain2); add pixel explicitly; chain2 runs in recipe priors (the "
-        "default recipe when it is named)",
+        "spring pendulum chain2 chain3); add pixel explicitly; chain2 and chain3 run in "
+        "recipe priors (the default recipe when one is named)",
     )
     parser.add_argument(
         "--models",
@@ -132,13 +132,13 @@ def _run_arguments(parser: ArgumentParser) -> None:
         "--recipe",
         default=None,
         choices=(*paper.RECIPES, "positions", "priors"),
-        help="paper (the default; priors when --tasks names chain2): the paper's settings "
+        help="paper (the default; priors when --tasks names a chain): the paper's settings "
         "(TASK.yaml); fast: the fast recipes (TASK_fast.yaml); "
         "traj: learning from the observed states only, trajectory objective (TASK_traj.yaml); "
         "positions: from positions alone (TASK_positions*.yaml) beside the states-only and "
         "finite-difference fits, scored through the observer (RESULTS_positions.md); "
         "priors: every model (baseline, HNN, LNN and the mass-matrix-structured pair) on "
-        "the state tasks' fast recipes and the chain pendulum (RESULTS_priors.md)",
+        "the state tasks' fast recipes and the chain pendulums (RESULTS_priors.md)",
     )
     parser.add_argument(
         "--chunks",
@@ -147,7 +147,7 @@ def _run_arguments(parser: ArgumentParser) -> None:
         default=None,
         choices=priors.CHUNKS,
         help="recipe priors: the chain pendulum's training chunks (default: 100; 800 is the "
-        "benchmark's large set, chain2.yaml)",
+        "benchmark's large set, chainN.yaml)",
     )
     parser.add_argument("--seeds", type=positive_int, default=3, help="number of seeds (0, 1, …)")
     parser.add_argument(
