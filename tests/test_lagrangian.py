@@ -233,12 +233,14 @@ def test_learned_mass_matrix_is_positive_definite(shared):
 # ------------------------------------------------------------------ angles and M⁻¹
 
 
-def test_angle_features_closed_forms_equal_autograd():
-    """An MLP reading x_0, x_2 as (cos, sin): 2π-periodic in them, and its closed-form
-    input gradient, vector–Jacobian and Jacobian–vector products are autograd's."""
+@pytest.mark.parametrize("pairs", [False, True])
+def test_angle_features_closed_forms_equal_autograd(pairs):
+    """An MLP reading x_0, x_2 as (cos, sin) (and their difference and sum with
+    ``angle_pairs``): 2π-periodic in them, and its closed-form input gradient,
+    vector–Jacobian and Jacobian–vector products are autograd's."""
     torch.manual_seed(20)
-    net = MLP(4, 3, 16, 2, angles=[2, 0]).double()
-    assert net.angles == (0, 2) and net.hidden[0].in_features == 6
+    net = MLP(4, 3, 16, 2, angles=[2, 0], angle_pairs=pairs).double()
+    assert net.angles == (0, 2) and net.hidden[0].in_features == (10 if pairs else 6)
     x = 4 * torch.randn(7, 4, dtype=torch.float64)
     turns = 2 * math.pi * torch.tensor([3.0, 0.0, -5.0, 0.0], dtype=torch.float64)
     torch.testing.assert_close(net(x + turns), net(x), rtol=0, atol=1e-12)
@@ -254,13 +256,16 @@ def test_angle_features_closed_forms_equal_autograd():
     for bad in ([4], [-1], [1, 1], [True]):
         with pytest.raises(ValueError, match="angles"):
             MLP(4, 1, angles=bad)
+    with pytest.raises(ValueError, match="two angles or more"):
+        MLP(4, 1, angles=[0], angle_pairs=True)
 
 
-def test_lnn_terms_with_angles_equal_torch_func():
-    """The LNN's closed-form Hessian blocks through the (cos q, sin q) features are
-    torch.func's of the same L; angles of q̇ are refused."""
+@pytest.mark.parametrize("pairs", [False, True])
+def test_lnn_terms_with_angles_equal_torch_func(pairs):
+    """The LNN's closed-form Hessian blocks through the (cos q, sin q) features (and the
+    pairs') are torch.func's of the same L; angles of q̇ are refused."""
     torch.manual_seed(21)
-    net = MLP(4, 1, 24, 2, angles=[0, 1]).double()
+    net = MLP(4, 1, 24, 2, angles=[0, 1], angle_pairs=pairs).double()
     q, v = states(32, 2, seed=22, scale=3.0)
     closed = mlp_lagrangian_terms(net, q, v)
     generic = lagrangian_terms(lambda a, b: net(torch.cat([a, b], -1))[..., 0], q, v)
@@ -286,13 +291,14 @@ def test_spd_inverse_has_the_right_jacobian_vector_product():
 
 
 @pytest.mark.parametrize("inverse", [False, True])
-@pytest.mark.parametrize("shared", [True, False])
-def test_structured_fields_with_angles_and_inverse_mass_equal_generic(inverse, shared):
-    """With (cos, sin) features and/or M⁻¹ learned, the closed-form fields are the
-    torch.func ones of the same M_θ, V_θ, the Hamiltonian field is J∇H_θ of its own
-    H_θ, and the Lagrangian twin's q̈ is d/dt of the Hamiltonian field's velocity."""
+@pytest.mark.parametrize(("shared", "pairs"), [(True, False), (False, False), (False, True)])
+def test_structured_fields_with_angles_and_inverse_mass_equal_generic(inverse, shared, pairs):
+    """With (cos, sin) features (and the pairs') and/or M⁻¹ learned, the closed-form
+    fields are the torch.func ones of the same M_θ, V_θ, the Hamiltonian field is J∇H_θ
+    of its own H_θ, and the Lagrangian twin's q̈ is d/dt of the Hamiltonian field's
+    velocity."""
     torch.manual_seed(24)
-    nets = MechanicalNets(2, 24, 2, "tanh", 1e-3, shared, [0, 1], inverse).double()
+    nets = MechanicalNets(2, 24, 2, "tanh", 1e-3, shared, [0, 1], inverse, pairs).double()
     y = 3 * torch.randn(20, 4, dtype=torch.float64)
     q, w = y.chunk(2, -1)
     field = MechanicalHamiltonianField(nets)
@@ -341,8 +347,14 @@ def test_models_with_angles_are_periodic_in_them(cls):
     torch.testing.assert_close(model(y + turn), model(y), rtol=1e-9, atol=1e-9)
     assert not torch.allclose(model(y + turn / 4), model(y))
     assert model.hparams.angles == [0, 1]
+    paired = cls(input_dim=4, hidden_dim=16, angles=[0, 1], angle_pairs=True).double()
+    torch.testing.assert_close(paired(y + turn), paired(y), rtol=1e-9, atol=1e-9)
+    assert not torch.allclose(paired(y + turn / 4), paired(y))
+    assert paired.hparams.angle_pairs is True
     with pytest.raises(ValueError, match="angles must be indices"):
         cls(input_dim=4, hidden_dim=8, angles=[2])
+    with pytest.raises(ValueError, match="two angles or more"):
+        cls(input_dim=4, hidden_dim=8, angles=[1], angle_pairs=True)
     with pytest.raises(ValueError, match="do not read angles"):
         DissipativeHNN(input_dim=4, hidden_dim=8, angles=[0])
 

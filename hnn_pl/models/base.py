@@ -36,6 +36,14 @@ STATES_OPTIONS = ("state_weight", "continuity_weight", "reinit_states")
 STATES_KEY = "hnn_pl_states_data"
 
 
+def angle_inputs(model: Any) -> dict[str, Any]:
+    """How ``model``'s networks read angles: the ``MLP`` options ``angles`` and
+    ``angle_pairs`` (none for a model without them, e.g. the autoencoder HNN)."""
+    return dict(
+        angles=getattr(model, "angles", ()), angle_pairs=getattr(model, "angle_pairs", False)
+    )
+
+
 def refuse_unused_options(objective: str, learned_states: str, options: dict[str, Any]) -> None:
     """One-line ``ValueError`` naming the options of :data:`TRAJECTORY_OPTIONS` set to
     other than their defaults that would do nothing: all of them with the derivative
@@ -291,6 +299,9 @@ class DynamicsModel(RecipeModel):
             networks read them as ``(cos q_i, sin q_i)`` (:class:`~hnn_pl.nets.MLP`), so
             the model is ``2π``-periodic in them however far they turn (``None``: none;
             a model whose networks cannot take them refuses them).
+        angle_pairs: the angles' pairwise differences and sums enter the networks too,
+            as ``(cos, sin)`` (two angles or more; :class:`~hnn_pl.nets.MLP`): a chain's
+            mass matrix, a function of ``θ_i − θ_j``, is then a function of inputs.
         **kwargs: the training recipe, :class:`~hnn_pl.models.recipe.RecipeModel`'s
             ``lr``, ``weight_decay``, ``optimizer``, ``schedule``, … (the paper's: Adam,
             constant rate).
@@ -311,6 +322,7 @@ class DynamicsModel(RecipeModel):
         continuity_weight: float = 0.0,
         reinit_states: bool = False,
         angles: list[int] | None = None,
+        angle_pairs: bool = False,
         **kwargs,
     ) -> None:
         super().__init__(**kwargs)
@@ -333,6 +345,11 @@ class DynamicsModel(RecipeModel):
         self.states_data: dict[str, Any] | None = None
         #: the angle coordinates the networks read as ``(cos, sin)`` (``build_field`` uses it)
         self.angles = check_angles(angles, input_dim // 2)
+        if not isinstance(angle_pairs, bool) or (angle_pairs and len(self.angles) < 2):
+            raise ValueError(
+                f"model.init_args.angle_pairs needs two angles or more: {list(self.angles)}"
+            )
+        self.angle_pairs = angle_pairs
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
         if self.angles and not any(getattr(m, "angles", ()) for m in self.field.modules()):
             raise ValueError(

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hnn_pl.models.base import DynamicsModel
+from hnn_pl.models.base import DynamicsModel, angle_inputs
 from hnn_pl.nets import MLP, DirectField
 
 
@@ -16,5 +16,5 @@ class Baseline(DynamicsModel):
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> DirectField:
         return DirectField(
-            MLP(input_dim, input_dim, hidden_dim, n_hidden, activation, getattr(self, "angles", ()))
+            MLP(input_dim, input_dim, hidden_dim, n_hidden, activation, **angle_inputs(self))
         )

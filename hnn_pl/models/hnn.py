@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from hnn_pl.models.base import DynamicsModel
+from hnn_pl.models.base import DynamicsModel, angle_inputs
 from hnn_pl.nets import MLP, HamiltonianField
 
 
@@ -20,7 +20,7 @@ class HNN(DynamicsModel):
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> HamiltonianField:
         return HamiltonianField(
-            MLP(input_dim, 1, hidden_dim, n_hidden, activation, getattr(self, "angles", ()))
+            MLP(input_dim, 1, hidden_dim, n_hidden, activation, **angle_inputs(self))
         )
 
     def hamiltonian(self, y: Tensor) -> Tensor:

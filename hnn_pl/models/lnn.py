@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
+from hnn_pl.models.base import angle_inputs
 from hnn_pl.models.recipe import is_weight
 from hnn_pl.models.velocity import VelocityModel
 from hnn_pl.nets import MLP
@@ -60,7 +61,7 @@ class LNN(VelocityModel):
     def build_field(
         self, input_dim: int, hidden_dim: int, n_hidden: int, activation: str
     ) -> LagrangianField:
-        net = MLP(input_dim, 1, hidden_dim, n_hidden, activation, self.angles)
+        net = MLP(input_dim, 1, hidden_dim, n_hidden, activation, **angle_inputs(self))
         return LagrangianField(net, self.kinetic_prior, self.rcond, self.ridge, self.on_singular)
 
     def lagrangian(self, x: Tensor) -> Tensor:

@@ -24,6 +24,7 @@ def _nets(model: DynamicsModel, input_dim: int, hidden_dim: int, n_hidden: int, 
         model.shared_trunk,
         model.angles,
         model.inverse_mass,
+        model.angle_pairs,
     )
 
 

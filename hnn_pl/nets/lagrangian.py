@@ -497,6 +497,7 @@ class MechanicalNets(nn.Module):
         shared: one network for both (``True``) or one each.
         angles: indices ``i < k`` of the angles among ``q``.
         inverse: ``A = M_θ⁻¹`` (``True``) or ``A = M_θ``.
+        angle_pairs: the angles' pairwise differences and sums as inputs too.
     """
 
     def __init__(
@@ -509,6 +510,7 @@ class MechanicalNets(nn.Module):
         shared: bool = True,
         angles: Sequence[int] = (),
         inverse: bool = False,
+        angle_pairs: bool = False,
     ) -> None:
         from hnn_pl.nets.mlp import MLP
 
@@ -516,10 +518,10 @@ class MechanicalNets(nn.Module):
         self.cholesky, self.shared, self.inverse = CholeskyMass(dof, eps), shared, inverse
         n = self.cholesky.size
         if shared:
-            self.net = MLP(dof, n + 1, hidden_dim, n_hidden, activation, angles)
+            self.net = MLP(dof, n + 1, hidden_dim, n_hidden, activation, angles, angle_pairs)
         else:
-            self.mass_net = MLP(dof, n, hidden_dim, n_hidden, activation, angles)
-            self.potential_net = MLP(dof, 1, hidden_dim, n_hidden, activation, angles)
+            self.mass_net = MLP(dof, n, hidden_dim, n_hidden, activation, angles, angle_pairs)
+            self.potential_net = MLP(dof, 1, hidden_dim, n_hidden, activation, angles, angle_pairs)
 
     def outputs(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """The factor's raw outputs ``(B, k(k+1)/2)`` and ``V_θ(q) (B,)``."""

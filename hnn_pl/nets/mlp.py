@@ -37,8 +37,12 @@ class MLP(nn.Module):
     PyTorch's default biases, no bias on the output layer.
 
     ``angles``: input coordinates that are angles enter as ``(cos x_i, sin x_i)``
-    (:meth:`features`, ``d → d + len(angles)``), so the network is ``2π``-periodic in
-    them exactly, however far an unwrapped angle has turned. The closed-form input
+    (:meth:`features`, ``d → d + a`` for ``a`` angles), so the network is ``2π``-periodic
+    in them exactly, however far an unwrapped angle has turned. ``angle_pairs``: every
+    pair ``i < j`` of them enters too as ``(cos, sin)`` of ``x_i − x_j`` and ``x_i + x_j``
+    (``2a(a − 1)`` more inputs): the torus's second-order Fourier basis, in which a
+    function of one angle difference (a chain's mass matrix) is a function of one input.
+    The closed-form input
     derivatives (:meth:`value_and_input_grad`, :meth:`input_vjp`, :meth:`input_jvp`)
     are with respect to the raw input ``x``, through the features.
 
@@ -49,6 +53,8 @@ class MLP(nn.Module):
         n_hidden: number of hidden layers (2 in the paper).
         activation: ``"tanh"`` (paper), ``"relu"`` or ``"softplus"``.
         angles: indices ``i < d`` of the input coordinates read as ``(cos, sin)``.
+        angle_pairs: the angles' pairwise differences and sums read as ``(cos, sin)``
+            too (needs two angles or more).
     """
 
     def __init__(
@@ -59,14 +65,21 @@ class MLP(nn.Module):
         n_hidden: int = 2,
         activation: str = "tanh",
         angles: Sequence[int] = (),
+        angle_pairs: bool = False,
     ) -> None:
         super().__init__()
         self._act = activation_fn(activation)
         self.angles = check_angles(angles, input_dim)
+        if not isinstance(angle_pairs, bool) or (angle_pairs and len(self.angles) < 2):
+            raise ValueError(f"angle_pairs needs two angles or more: {list(self.angles)}")
+        self.angle_pairs = angle_pairs
         rest = [i for i in range(input_dim) if i not in self.angles]
+        pairs = torch.combinations(torch.arange(len(self.angles)), 2) if angle_pairs else None
         self.register_buffer("angle_index", torch.tensor(self.angles, dtype=torch.long), False)
         self.register_buffer("rest_index", torch.tensor(rest, dtype=torch.long), False)
-        dims = [input_dim + len(self.angles)] + [hidden_dim] * n_hidden
+        self.register_buffer("pair_index", pairs, False)
+        n_pairs = 0 if pairs is None else len(pairs)
+        dims = [input_dim + len(self.angles) + 4 * n_pairs] + [hidden_dim] * n_hidden
         self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         self.out = nn.Linear(hidden_dim, output_dim, bias=False)
         self.activation = activation
@@ -75,36 +88,58 @@ class MLP(nn.Module):
 
     def features(self, x: Tensor) -> Tensor:
         """The first layer's input ``(x_rest, cos x_A, sin x_A)``, ``x_A`` the
-        ``angles``, ``x_rest`` the other coordinates in order: ``(..., d) -> (..., d + a)``;
-        ``x`` itself without angles."""
+        ``angles``, ``x_rest`` the other coordinates in order, then with ``angle_pairs``
+        ``(cos d, sin d, cos s, sin s)`` of the pairs' differences ``d = x_i − x_j`` and sums
+        ``s = x_i + x_j``: ``(..., d) -> (..., d + a + 4·pairs)``; ``x`` itself without
+        angles."""
         if not self.angles:
             return x
         a = x[..., self.angle_index]
-        return torch.cat([x[..., self.rest_index], a.cos(), a.sin()], -1)
+        parts = [x[..., self.rest_index], a.cos(), a.sin()]
+        if self.pair_index is not None:
+            d, s = self._pair_angles(a)
+            parts += [d.cos(), d.sin(), s.cos(), s.sin()]
+        return torch.cat(parts, -1)
+
+    def _pair_angles(self, a: Tensor) -> tuple[Tensor, Tensor]:
+        """The pairs' ``x_i − x_j`` and ``x_i + x_j`` of the angles ``a (..., a)``."""
+        ai, aj = a[..., self.pair_index[:, 0]], a[..., self.pair_index[:, 1]]
+        return ai - aj, ai + aj
 
     def features_vjp(self, x: Tensor, g: Tensor) -> Tensor:
-        """``(∂features/∂x)ᵀ g``: ``g (..., d + a)`` at ``x (..., d)`` to ``(..., d)``;
-        an angle's entry is ``−sin x_i · g_cos + cos x_i · g_sin``."""
+        """``(∂features/∂x)ᵀ g``: ``g (..., d + a + 4·pairs)`` at ``x (..., d)`` to
+        ``(..., d)``; an angle's entry is ``−sin x_i · g_cos + cos x_i · g_sin``, plus, for
+        each pair it is in, ``±(−sin d · g_cos d + cos d · g_sin d)`` (``+`` first, ``−``
+        second of the pair) and ``−sin s · g_cos s + cos s · g_sin s``."""
         if not self.angles:
             return g
-        n, a = len(self.rest_index), x[..., self.angle_index]
-        g_rest, g_cos, g_sin = (
-            g[..., :n],
-            g[..., n : n + len(self.angles)],
-            g[..., -len(self.angles) :],
-        )
+        n, m, a = len(self.rest_index), len(self.angles), x[..., self.angle_index]
+        g_rest, g_cos, g_sin = g[..., :n], g[..., n : n + m], g[..., n + m : n + 2 * m]
+        g_angle = a.cos() * g_sin - a.sin() * g_cos
+        if self.pair_index is not None:
+            d, s = self._pair_angles(a)
+            g_cos_d, g_sin_d, g_cos_s, g_sin_s = g[..., n + 2 * m :].chunk(4, -1)
+            from_d = d.cos() * g_sin_d - d.sin() * g_cos_d
+            from_s = s.cos() * g_sin_s - s.sin() * g_cos_s
+            g_angle = g_angle.index_add(-1, self.pair_index[:, 0], from_d + from_s)
+            g_angle = g_angle.index_add(-1, self.pair_index[:, 1], from_s - from_d)
         out = torch.zeros(g.shape[:-1] + x.shape[-1:], dtype=g.dtype, device=g.device)
         out[..., self.rest_index] = g_rest
-        out[..., self.angle_index] = a.cos() * g_sin - a.sin() * g_cos
+        out[..., self.angle_index] = g_angle
         return out
 
     def features_jvp(self, x: Tensor, t: Tensor) -> Tensor:
         """``(∂features/∂x) t``: a tangent ``t (..., d)`` at ``x`` (broadcast against
-        it) to ``(..., d + a)``; an angle's pair is ``(−sin x_i, cos x_i) t_i``."""
+        it) to ``(..., d + a + 4·pairs)``; an angle's pair is ``(−sin x_i, cos x_i) t_i``, a
+        difference's ``(−sin d, cos d)(t_i − t_j)``, a sum's ``(−sin s, cos s)(t_i + t_j)``."""
         if not self.angles:
             return t
         a, ta = x[..., self.angle_index], t[..., self.angle_index]
-        return torch.cat([t[..., self.rest_index], -a.sin() * ta, a.cos() * ta], -1)
+        parts = [t[..., self.rest_index], -a.sin() * ta, a.cos() * ta]
+        if self.pair_index is not None:
+            (d, s), (td, ts) = self._pair_angles(a), self._pair_angles(ta)
+            parts += [-d.sin() * td, d.cos() * td, -s.sin() * ts, s.cos() * ts]
+        return torch.cat(parts, -1)
 
     def forward(self, x: Tensor) -> Tensor:
         """``(..., d) -> (..., out)``."""
