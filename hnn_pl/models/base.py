@@ -12,7 +12,7 @@ from torch import Tensor, nn
 from torchmetrics import MeanSquaredError
 
 from hnn_pl.models.recipe import RecipeModel, is_count, is_weight
-from hnn_pl.nets.mlp import check_angles
+from hnn_pl.nets.mlp import check_angle_pairs, check_angles
 
 OBJECTIVES = ("derivative", "trajectory")
 LEARNED_STATES = ("none", "sample", "trajectory")
@@ -345,10 +345,7 @@ class DynamicsModel(RecipeModel):
         self.states_data: dict[str, Any] | None = None
         #: the angle coordinates the networks read as ``(cos, sin)`` (``build_field`` uses it)
         self.angles = check_angles(angles, input_dim // 2)
-        if not isinstance(angle_pairs, bool) or (angle_pairs and len(self.angles) < 2):
-            raise ValueError(
-                f"model.init_args.angle_pairs needs two angles or more: {list(self.angles)}"
-            )
+        check_angle_pairs(angle_pairs, self.angles, "model.init_args.angle_pairs")
         self.angle_pairs = angle_pairs
         self.field = self.build_field(input_dim, hidden_dim, n_hidden, activation)
         if self.angles and not any(getattr(m, "angles", ()) for m in self.field.modules()):

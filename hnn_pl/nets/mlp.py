@@ -30,6 +30,15 @@ def check_angles(angles: Sequence[int] | None, dof: int) -> tuple[int, ...]:
     return tuple(sorted(angles))
 
 
+def check_angle_pairs(
+    angle_pairs: bool, angles: tuple[int, ...], name: str = "angle_pairs"
+) -> None:
+    """A one-line ``ValueError`` unless ``angle_pairs`` is a bool, true only with two
+    ``angles`` or more (``name``: how the option is spelled in the message)."""
+    if not isinstance(angle_pairs, bool) or (angle_pairs and len(angles) < 2):
+        raise ValueError(f"{name} needs two angles or more: {list(angles)}")
+
+
 class MLP(nn.Module):
     """``Linear(d→h) → σ → Linear(h→h) → σ → … → Linear(h→out, no bias)``.
 
@@ -70,8 +79,7 @@ class MLP(nn.Module):
         super().__init__()
         self._act = activation_fn(activation)
         self.angles = check_angles(angles, input_dim)
-        if not isinstance(angle_pairs, bool) or (angle_pairs and len(self.angles) < 2):
-            raise ValueError(f"angle_pairs needs two angles or more: {list(self.angles)}")
+        check_angle_pairs(angle_pairs, self.angles)
         self.angle_pairs = angle_pairs
         rest = [i for i in range(input_dim) if i not in self.angles]
         pairs = torch.combinations(torch.arange(len(self.angles)), 2) if angle_pairs else None
