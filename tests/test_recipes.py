@@ -153,8 +153,11 @@ def test_polishing_is_lbfgs_with_its_whole_line_search(tmp_path):
     """P polishing steps reach the weights of one torch L-BFGS call of P iterations from
     where the first optimiser left them: the same line searches (a one-iteration step
     with torch's default ``max_eval`` had none, and kept its start whenever the first
-    trial was no better)."""
-    polished = _model(polish_steps=8, loss="l1", lr=1e-2)
+    trial was no better), and no more evaluations of the objective than that call's
+    (each step's opening evaluation, of the point the last line search ended on, is
+    answered from the kept evaluations)."""
+    polished = _model(_Seen, polish_steps=8, loss="l1", lr=1e-2)
+    polished.seen = []
     _fit(polished, _dm(tmp_path), 10)
     start = _model(loss="l1", lr=1e-2)
     _fit(start, _dm(tmp_path), 2)  # early: its line searches take several evaluations
@@ -180,7 +183,9 @@ def test_polishing_is_lbfgs_with_its_whole_line_search(tmp_path):
         return loss
 
     opt.step(closure)
-    assert opt.state[opt._params[0]]["func_evals"] > 9  # some line searches took two or more
+    evals = opt.state[opt._params[0]]["func_evals"]
+    assert evals > 9  # some line searches took two or more
+    assert sum(p for _, p in polished.seen) == evals
     for a, b in zip(polished.parameters(), start.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-12)
 

@@ -32,6 +32,8 @@ SCHEDULES = ("constant", "cosine", "onecycle")
 MAX_SKIPS = 10
 #: objective evaluations an L-BFGS step's strong-Wolfe line search may take (torch's own)
 MAX_LINE_SEARCH = 25
+#: polishing evaluations kept to answer L-BFGS's repeat of the point its last step ended on
+KEPT_EVALUATIONS = 4
 
 
 def is_count(value: Any, least: int = 1) -> bool:
@@ -138,6 +140,8 @@ class RecipeModel(L.LightningModule):
         #: true while an L-BFGS polishing step evaluates the objective (its squared form)
         self.polishing = False
         self._full_batch: Any = None
+        #: polishing evaluations kept (:meth:`_seen_evaluation`): (weights, parts, loss, grads)
+        self._evaluations: list[tuple[Tensor, dict[str, Tensor], Tensor, list[Tensor | None]]] = []
         self.recipe = dict(
             lr=lr,
             weight_decay=weight_decay,
@@ -274,6 +278,7 @@ class RecipeModel(L.LightningModule):
 
     def on_fit_start(self) -> None:
         self._full_batch = None  # gathered at the first polishing step, from this fit's data
+        self._evaluations = []
         polish, most = self.recipe["polish_steps"], self.trainer.max_steps
         if polish and not (most and most > 0):
             raise ValueError(
@@ -366,9 +371,15 @@ class RecipeModel(L.LightningModule):
         of ``groups``; ``polishing``: the objective in its squared form. A non-finite
         loss or gradient always stops."""
         parts: dict[str, Tensor] = {}
+        params = [p for g in opt.param_groups for p in g["params"]]
 
         def closure() -> Tensor:
             nonlocal parts
+            if polishing:
+                seen = self._seen_evaluation(params)
+                if seen is not None:
+                    parts, loss = seen
+                    return loss
             opt.zero_grad()
             self.polishing = polishing
             try:
@@ -379,10 +390,42 @@ class RecipeModel(L.LightningModule):
             loss = parts["loss"] + self._l2(groups)
             self.manual_backward(loss)
             self._nonfinite(parts, can_skip=False, gradients=True)
+            if polishing:
+                self._remember_evaluation(params, parts, loss)
             return loss
 
         opt.step(closure)
         return parts
+
+    def _remember_evaluation(
+        self, params: list[Tensor], parts: dict[str, Tensor], loss: Tensor
+    ) -> None:
+        """Keep a polishing evaluation — weights, objective, gradients — for
+        :meth:`_seen_evaluation`; the last :data:`KEPT_EVALUATIONS` are kept (a line
+        search mostly ends on its last trial, or on the one before)."""
+        weights = torch.cat([p.detach().reshape(-1) for p in params])
+        grads = [None if p.grad is None else p.grad.detach().clone() for p in params]
+        detached = {k: v.detach() for k, v in parts.items()}
+        self._evaluations = [
+            *self._evaluations[1 - KEPT_EVALUATIONS :],
+            (weights, detached, loss.detach(), grads),
+        ]
+
+    def _seen_evaluation(self, params: list[Tensor]) -> tuple[dict[str, Tensor], Tensor] | None:
+        """The objective and gradients (set into ``.grad``) of a polishing evaluation at
+        exactly these weights, if one was kept. torch's L-BFGS evaluates the objective at
+        the start of every ``step`` although its previous line search ended on a point it
+        evaluated (bit for bit the same weights: both are ``x + t·d`` from the same ``x``);
+        with one iteration a step, that repeat was a third to a half of all evaluations."""
+        if not self._evaluations:
+            return None
+        weights = torch.cat([p.detach().reshape(-1) for p in params])
+        for seen, parts, loss, grads in reversed(self._evaluations):
+            if torch.equal(seen, weights):
+                for p, g in zip(params, grads, strict=True):
+                    p.grad = None if g is None else g.clone()
+                return parts, loss
+        return None
 
     def _polish_step(self, opt: Any) -> dict[str, Tensor]:
         """One L-BFGS iteration of the polishing (:class:`RecipeModel`) on the whole
