@@ -143,7 +143,8 @@ def test_summaries_are_medians_and_worst_and_the_targets_read_them():
     assert hnn["rollout_error"] == (6e-4, 1e-3) and hnn["seeds"] == 3 and hnn["failed"] == 0
     assert lnn["seeds"] == 0 and lnn["failed"] == 1 and "rollout_error" not in lnn
     page = priors.render(records, {"command": "c", "machine": "m", "wall_s": 1.0})
-    assert "- 800 chunks, hnn: 6.00e-04 (target ≤ 8.30e-04, the published HNN): met" in page
+    hnn_target = "- 800 chunks, hnn: 6.00e-04 (target ≤ 8.30e-04, the published HNN): met"
+    assert hnn_target + " over 3 of 5 seeds" in page
     assert "- chaos floor: 5.60e-05, 2% from the published 5.70e-05 (target ≤ 30%): met" in page
     assert "Smoke run" not in page
     # 3 links: no published model, its own floor, no targets
