@@ -190,6 +190,30 @@ def test_polishing_is_lbfgs_with_its_whole_line_search(tmp_path):
         torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-12)
 
 
+def test_polishing_stops_when_its_weights_stop_changing(tmp_path, monkeypatch):
+    """In float32 L-BFGS's line search runs out of decrease; from then on every step
+    repeats it from the same point. The fit stops at the first step that leaves the
+    weights as they were, with the weights that running every remaining step ends on."""
+
+    def fit(stop: bool) -> tuple[HNN, L.Trainer]:
+        if not stop:
+            monkeypatch.setattr(HNN, "_stop_polishing", lambda self: None)
+        torch.manual_seed(0)
+        model = HNN(input_dim=2, hidden_dim=8, polish_steps=380, lr=1e-2)
+        kw = dict(n_trajectories=3, n_points=10, full_batch_steps=4, seed=0)
+        dm = SimulatedData(MassSpring(), cache_dir=str(tmp_path), dtype="float32", **kw)
+        trainer = L.Trainer(max_steps=400, precision="32-true", **QUIET_TRAINER)
+        trainer.fit(model, dm)
+        return model, trainer
+
+    stopped, trainer = fit(stop=True)
+    assert 20 < stopped.polish_stopped_at == trainer.global_step < 400
+    full, trainer = fit(stop=False)
+    assert trainer.global_step == 400 and full.polish_stopped_at is None
+    for a, b in zip(stopped.parameters(), full.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
 def test_a_run_shorter_than_its_polishing_polishes_its_second_half(tmp_path):
     """A smoke run of a polishing config (``max_steps`` ≤ ``polish_steps``) still runs,
     says so, and polishes its last half; without ``max_steps`` polishing is refused."""
