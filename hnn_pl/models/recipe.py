@@ -421,7 +421,7 @@ class RecipeModel(L.LightningModule):
         exactly these weights, if one was kept. torch's L-BFGS evaluates the objective at
         the start of every ``step`` although its previous line search ended on a point it
         evaluated (bit for bit the same weights: both are ``x + t·d`` from the same ``x``);
-        with one iteration a step, that repeat was a third to a half of all evaluations."""
+        with one iteration a step, that repeat is one evaluation in every iteration."""
         if not self._evaluations:
             return None
         weights = torch.cat([p.detach().reshape(-1) for p in params])
