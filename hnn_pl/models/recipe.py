@@ -377,10 +377,12 @@ class RecipeModel(L.LightningModule):
         loss or gradient always stops."""
         parts: dict[str, Tensor] = {}
         params = [p for g in opt.param_groups for p in g["params"]]
+        opening = polishing  # only a step's opening evaluation can repeat a kept one
 
         def closure() -> Tensor:
-            nonlocal parts
-            if polishing:
+            nonlocal parts, opening
+            if opening:
+                opening = False
                 seen = self._seen_evaluation(params)
                 if seen is not None:
                     parts, loss = seen
