@@ -156,3 +156,29 @@ def test_grouped_mean_is_std_of_group_means_over_root_groups():
     assert mean == pytest.approx(7.0)
     assert pm == pytest.approx(float(groups.std() / 5**0.5))
     assert math.isnan(grouped_mean(x[:1], 1)[1])
+
+
+def test_error_floors_are_the_systems_computed_once_for_every_model(spring_dm, monkeypatch):
+    """The floors depend on no model: a second model's rollout reuses the first's (the true
+    system is not integrated again), a changed system or protocol computes them anew,
+    and the kept floors equal a fresh computation."""
+    from hnn_pl.evaluation import views
+
+    p = evaluation.task_protocol("spring", "clean").replace(max_starts=3, t_end=2.0, n_points=21)
+    monkeypatch.setattr(views, "_FLOORS", {})
+    calls = []
+    real = views._error_floors
+    monkeypatch.setattr(views, "_error_floors", lambda *a: calls.append(a[1]) or real(*a))
+    first = p.run(TrueField(spring_dm.system), spring_dm).floors
+    second = p.run(TrueField(spring_dm.system, damping=0.1), spring_dm).floors
+    assert len(calls) == 1 and first.keys() == second.keys() and first
+    for name, value in first.items():
+        assert torch.equal(value, second[name])
+    t, y = spring_dm.rollout_target(p.t_end, p.n_points)
+    fresh = real(spring_dm, spring_dm.system, t, y[:, :3], p)
+    for name, value in fresh.items():
+        torch.testing.assert_close(first[name], value, rtol=0, atol=0)
+    p.replace(method="rk4", step_size=0.1).run(TrueField(spring_dm.system), spring_dm)
+    monkeypatch.setattr(spring_dm, "system", MassSpring(alpha=2.0))
+    p.run(TrueField(spring_dm.system), spring_dm)
+    assert len(calls) == 3
