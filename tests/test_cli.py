@@ -164,9 +164,14 @@ def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
     assert {"rollout/phase_portrait", "rollout/energy"} <= set(tags["images"])
 
 
-_TWIN = re.compile(r"_(baseline|dissipative|lnn|mechanical_hnn)$")
+_TWIN = re.compile(r"_(baseline|dissipative|lnn|mechanical_hnn|mechanical_lnn)$")
 #: the model class of a twin config, by its suffix
-_TWIN_CLASS = {"dissipative": "DissipativeHNN", "lnn": "LNN", "mechanical_hnn": "MechanicalHNN"}
+_TWIN_CLASS = {
+    "dissipative": "DissipativeHNN",
+    "lnn": "LNN",
+    "mechanical_hnn": "MechanicalHNN",
+    "mechanical_lnn": "MechanicalLNN",
+}
 
 
 def _run_name(config: str) -> str:
@@ -213,7 +218,7 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
     assert (trainer["accelerator"], trainer["devices"], trainer["max_epochs"]) == ("cpu", 1, -1)
     assert trainer["inference_mode"] is False and trainer["enable_model_summary"] is False
     task = re.sub(
-        r"(_fast|_traj|_positions(_fd)?|_100)?(_baseline|_dissipative|_lnn|_mechanical_hnn)?$",
+        r"(_fast|_traj|_positions(_fd)?|_100)?(_baseline|_dissipative|_lnn|_mechanical_[hl]nn)?$",
         "",
         Path(config).stem,
     )
@@ -229,12 +234,13 @@ _OWN_RECIPE = {
         for n in (2, 3)
         for size in ("", "_100")
     },
-    # measured with the angle pairs from 800 chunks, where the other models are not yet
+    # measured with the angle pairs from 800 chunks, where the plain models are not yet
     "chain2_mechanical_hnn": (
         ("trainer", "max_steps"),
         ("model", "polish_steps"),
         ("model", "angle_pairs"),
     ),
+    "chain2_mechanical_lnn": (("model", "angle_pairs"),),
 }
 
 
@@ -281,10 +287,14 @@ def short_rollouts(monkeypatch):
 
 
 def _fit_case(config: str):
-    """A config's three-step fit; the 3-link chain's twins of 2-link configs in the slow tier
+    """A config's three-step fit; in the slow tier the 3-link chain's twins of 2-link configs
     (their code is the 2-link one's; ``chain3_100.yaml`` keeps the 3-link data in the default
-    tier)."""
+    tier) and the 800-chunk 2-link configs whose 100-chunk namesake fits here (the same
+    model and data classes; sizes, steps and ``angle_pairs`` apart, whose both values other
+    configs fit)."""
     twin = config.startswith("chain3") and config != "chain3_100.yaml"
+    namesake = config.replace("chain2", "chain2_100", 1)
+    twin |= config.startswith("chain2") and "_100" not in config and namesake in CONFIGS
     return pytest.param(config, marks=pytest.mark.slow) if twin else config
 
 

@@ -1,6 +1,6 @@
 """Every script in examples/ imports and runs as a user runs it (small sizes): it writes
 only where it is told or into a temporary folder, and prints no third-party advert or
-deprecation notice."""
+deprecation notice; what a script's run leaves is checked too (:data:`CHECKS`)."""
 
 from __future__ import annotations
 
@@ -31,6 +31,29 @@ WRITES: dict[str, set[str]] = {
     "figures.py": {"bump.png", "bump.pt", "double_well.png"},
     "friction.py": {"friction_table.md", "friction.png"},
 }
+
+
+def _camera_trained_on_angles_alone(out: Path) -> None:
+    """camera.py: a complete config that trains on a ``trajectory,time,q`` CSV, the
+    momenta learned, and scores the held-out swings by their positions."""
+    import math
+
+    import torch
+    import yaml
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    assert (out / "angles.csv").read_text().splitlines()[0] == "trajectory,time,q"
+    config = yaml.safe_load((out / "camera.yaml").read_text())
+    assert config["data"]["class_path"] == "hnn_pl.data.RecordingData"
+    run = out / "lightning_logs" / "camera_hnn" / "version_0"
+    ckpt = torch.load(run / "checkpoints" / "last.ckpt", weights_only=False, map_location="cpu")
+    assert ckpt["state_dict"]["states"].shape == (9 * 40, 2)  # 9 training swings of 40 angles
+    mse = EventAccumulator(str(run)).Reload().Scalars("rollout/position_mse")[-1].value
+    assert math.isfinite(mse) and mse > 0
+
+
+#: what a quick run's folder must hold beyond its files' names
+CHECKS = {"camera.py": _camera_trained_on_angles_alone}
 
 #: what no example may print (Lightning's cloud advert, deprecation notices)
 NOISE = ("litlogger", "LitLogger", "💡", "deprecated", "Deprecat")
@@ -81,3 +104,5 @@ def test_example_runs_as_a_script(name, tmp_path):
     assert not [word for word in NOISE if word in printed], printed
     assert list(cwd.iterdir()) == [], "an example wrote into the directory it was run from"
     assert {p.name for p in out.iterdir()} == WRITES[name] if WRITES[name] else not out.exists()
+    if name in CHECKS:
+        CHECKS[name](out)
