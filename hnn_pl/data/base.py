@@ -270,7 +270,7 @@ class TrajectoryDataModule(L.LightningDataModule):
                 raise no_space(path) from None
             raise
         params = json.loads(json.dumps(self._cache_params(), default=str))
-        save_atomic({"data": data, "params": params, "sha256": _checksum(data)}, path)
+        save_atomic({"data": data, "params": params, "sha256": tensors_digest(data)}, path)
 
     def _load_cache(self) -> dict[str, Tensor] | None:
         """The cached tensors, or ``None`` (with a warning if a file was there but bad)."""
@@ -283,7 +283,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             params = json.loads(json.dumps(self._cache_params(), default=str))
             if payload["params"] != params:
                 problem = f"it was made with other parameters ({payload['params']})"
-            elif payload["sha256"] != _checksum(data):
+            elif payload["sha256"] != tensors_digest(data):
                 problem = "its checksum does not match its contents"
             else:
                 return data
@@ -497,7 +497,7 @@ def window_starts(traj: Tensor, k: int) -> Tensor:
     return s[:, None] + torch.arange(k)
 
 
-def _checksum(data: dict[str, Tensor]) -> str:
+def tensors_digest(data: dict[str, Tensor]) -> str:
     """SHA-256 over the names, dtypes, shapes and bytes of ``data``'s tensors."""
     digest = hashlib.sha256()
     for key in sorted(data):

@@ -16,7 +16,6 @@ protocols of :mod:`hnn_pl.evaluation.contract` (:class:`StateData`, read where p
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from typing import Any
@@ -204,18 +203,13 @@ def _floors_key(dm: StateData, system: Any, t: Tensor, y_true: Tensor, p: Any) -
     """What :func:`error_floors` depends on: the data's class (its ``energy``), the
     system (class, parameters, a user system's source), the protocol, and the values
     of ``t`` and ``y_true``."""
+    from hnn_pl.data.base import tensors_digest
     from hnn_pl.systems.base import source_digest, system_spec
 
-    digest = hashlib.sha256()
     spec = system_spec(system) | {"source": source_digest(type(system))}
-    spec["data"] = f"{type(dm).__module__}.{type(dm).__qualname__}"
-    digest.update(json.dumps(spec, sort_keys=True, default=repr).encode())
-    digest.update(repr(p).encode())
-    for x in (t, y_true):
-        x = x.detach().cpu().contiguous()
-        digest.update(f"{x.dtype}{tuple(x.shape)}".encode())
-        digest.update(x.numpy().tobytes())
-    return digest.hexdigest()
+    spec |= {"data": f"{type(dm).__module__}.{type(dm).__qualname__}", "protocol": repr(p)}
+    spec["values"] = tensors_digest({"t": t, "y_true": y_true})
+    return json.dumps(spec, sort_keys=True, default=repr)
 
 
 def _error_floors(
