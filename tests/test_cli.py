@@ -234,13 +234,6 @@ _OWN_RECIPE = {
         for n in (2, 3)
         for size in ("", "_100")
     },
-    # measured with the angle pairs from 800 chunks, where the plain models are not yet
-    "chain2_mechanical_hnn": (
-        ("trainer", "max_steps"),
-        ("model", "polish_steps"),
-        ("model", "angle_pairs"),
-    ),
-    "chain2_mechanical_lnn": (("model", "angle_pairs"),),
 }
 
 
