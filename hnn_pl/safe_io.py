@@ -329,7 +329,7 @@ def machine_memory() -> int:
     return total
 
 
-def idle_cores(samples: int = 5, interval: float = 0.02) -> int:
+def idle_cores(samples: int = 3, interval: float = 0.01) -> int:
     """The cores of this process not busy with other processes: ``max(1, cores − busy)``,
     ``busy`` the larger of the 1-minute load average (rounded) and the other processes
     runnable now (the median of ``samples`` reads of ``/proc/loadavg`` ``interval`` s
