@@ -25,21 +25,15 @@ def _nets(model: DynamicsModel, input_dim: int, hidden_dim: int, n_hidden: int, 
         model.angles,
         model.inverse_mass,
         model.angle_pairs,
-        model.invariant_mass,
     )
 
 
-def _check(mass_eps: float, shared_trunk: bool, inverse_mass: bool, invariant_mass: bool) -> None:
+def _check(mass_eps: float, shared_trunk: bool, inverse_mass: bool) -> None:
     if not (is_weight(mass_eps) and mass_eps > 0):
         raise ValueError(f"mass_eps must be finite and > 0: {mass_eps}")
-    flags = (("shared_trunk", shared_trunk), ("inverse_mass", inverse_mass))
-    for name, value in (*flags, ("invariant_mass", invariant_mass)):
+    for name, value in (("shared_trunk", shared_trunk), ("inverse_mass", inverse_mass)):
         if not isinstance(value, bool):
             raise ValueError(f"{name} must be true or false: {value!r}")
-    if invariant_mass and shared_trunk:
-        raise ValueError(
-            "model.init_args.invariant_mass needs shared_trunk: false (M_θ's own network)"
-        )
 
 
 class _Mechanical:
@@ -83,9 +77,6 @@ class MechanicalHNN(_Mechanical, DynamicsModel):
         shared_trunk: the factor and ``V_θ`` as two heads of one MLP
             ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
         inverse_mass: learn the factor of ``M_θ⁻¹`` (default) or of ``M_θ``.
-        invariant_mass: ``M_θ`` reads the ``angles`` through their pairwise differences
-            alone (two angles or more, ``shared_trunk: false``): unchanged when every angle
-            turns together, the symmetry of a planar chain's kinetic energy.
         **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
     """
 
@@ -94,12 +85,10 @@ class MechanicalHNN(_Mechanical, DynamicsModel):
         mass_eps: float = 1e-3,
         shared_trunk: bool = True,
         inverse_mass: bool = True,
-        invariant_mass: bool = False,
         **kwargs,
     ) -> None:
-        _check(mass_eps, shared_trunk, inverse_mass, invariant_mass)
+        _check(mass_eps, shared_trunk, inverse_mass)
         self.mass_eps, self.shared_trunk, self.inverse_mass = mass_eps, shared_trunk, inverse_mass
-        self.invariant_mass = invariant_mass
         super().__init__(**kwargs)
 
     FIELD = MechanicalHamiltonianField
@@ -123,9 +112,6 @@ class MechanicalLNN(_Mechanical, VelocityModel):
         shared_trunk: the factor and ``V_θ`` as two heads of one MLP
             ``k → h → h → k(k+1)/2 + 1`` (default; the cost of one network), or two MLPs.
         inverse_mass: learn the factor of ``M_θ⁻¹`` (default) or of ``M_θ``.
-        invariant_mass: ``M_θ`` reads the ``angles`` through their pairwise differences
-            alone (two angles or more, ``shared_trunk: false``): unchanged when every angle
-            turns together, the symmetry of a planar chain's kinetic energy.
         **kwargs: the arguments of :class:`~hnn_pl.models.base.DynamicsModel`.
     """
 
@@ -134,12 +120,10 @@ class MechanicalLNN(_Mechanical, VelocityModel):
         mass_eps: float = 1e-3,
         shared_trunk: bool = True,
         inverse_mass: bool = True,
-        invariant_mass: bool = False,
         **kwargs,
     ) -> None:
-        _check(mass_eps, shared_trunk, inverse_mass, invariant_mass)
+        _check(mass_eps, shared_trunk, inverse_mass)
         self.mass_eps, self.shared_trunk, self.inverse_mass = mass_eps, shared_trunk, inverse_mass
-        self.invariant_mass = invariant_mass
         super().__init__(**kwargs)
 
     FIELD = MechanicalLagrangianField

@@ -488,10 +488,7 @@ class MechanicalNets(nn.Module):
     ``≤ 1/ε``). ``shared``: one ``MLP(k → h … → k(k+1)/2 + 1)`` whose hidden layers both
     read (as DeLaN's shared trunk; the cost of one network); else two MLPs of that width
     and depth. ``angles``: the coordinates of ``q`` that enter the MLPs as
-    ``(cos q_i, sin q_i)`` (:class:`~hnn_pl.nets.MLP`). ``invariant_mass``: the mass
-    network reads the angles through their pairwise differences alone (the MLP's
-    ``rotation_invariant``; two networks), so ``M_θ(q)`` is unchanged when every angle turns
-    together, as a planar chain's is (``M_ij ∝ cos(θ_i − θ_j)``).
+    ``(cos q_i, sin q_i)`` (:class:`~hnn_pl.nets.MLP`).
 
     Args:
         dof: ``k``.
@@ -501,7 +498,6 @@ class MechanicalNets(nn.Module):
         angles: indices ``i < k`` of the angles among ``q``.
         inverse: ``A = M_θ⁻¹`` (``True``) or ``A = M_θ``.
         angle_pairs: the angles' pairwise differences and sums as inputs too.
-        invariant_mass: ``M_θ`` a function of the angles' differences (not with ``shared``).
     """
 
     def __init__(
@@ -515,25 +511,16 @@ class MechanicalNets(nn.Module):
         angles: Sequence[int] = (),
         inverse: bool = False,
         angle_pairs: bool = False,
-        invariant_mass: bool = False,
     ) -> None:
-        from hnn_pl.nets.mlp import MLP, check_angle_pairs
+        from hnn_pl.nets.mlp import MLP
 
         super().__init__()
         self.cholesky, self.shared, self.inverse = CholeskyMass(dof, eps), shared, inverse
         n = self.cholesky.size
-        check_angle_pairs(invariant_mass, tuple(angles), "invariant_mass")
-        if shared and invariant_mass:
-            raise ValueError(
-                "an invariant mass matrix needs its own network: not with a shared trunk"
-            )
         if shared:
             self.net = MLP(dof, n + 1, hidden_dim, n_hidden, activation, angles, angle_pairs)
         else:
-            mass_pairs = (
-                dict(rotation_invariant=True) if invariant_mass else dict(angle_pairs=angle_pairs)
-            )
-            self.mass_net = MLP(dof, n, hidden_dim, n_hidden, activation, angles, **mass_pairs)
+            self.mass_net = MLP(dof, n, hidden_dim, n_hidden, activation, angles, angle_pairs)
             self.potential_net = MLP(dof, 1, hidden_dim, n_hidden, activation, angles, angle_pairs)
 
     def outputs(self, q: Tensor) -> tuple[Tensor, Tensor]:

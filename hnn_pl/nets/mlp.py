@@ -51,9 +51,6 @@ class MLP(nn.Module):
     pair ``i < j`` of them enters too as ``(cos, sin)`` of ``x_i − x_j`` and ``x_i + x_j``
     (``2a(a − 1)`` more inputs): the torus's second-order Fourier basis, in which a
     function of one angle difference (a chain's mass matrix) is a function of one input.
-    ``rotation_invariant``: the angles enter only as ``(cos, sin)`` of their pairwise
-    differences ``x_i − x_j`` (``d − a + a(a − 1)`` inputs), so the output is unchanged
-    when every angle turns by the same amount (a planar chain's mass matrix).
     The closed-form input
     derivatives (:meth:`value_and_input_grad`, :meth:`input_vjp`, :meth:`input_jvp`)
     are with respect to the raw input ``x``, through the features.
@@ -67,8 +64,6 @@ class MLP(nn.Module):
         angles: indices ``i < d`` of the input coordinates read as ``(cos, sin)``.
         angle_pairs: the angles' pairwise differences and sums read as ``(cos, sin)``
             too (needs two angles or more).
-        rotation_invariant: the angles read through their pairwise differences alone
-            (needs two angles or more; not with ``angle_pairs``).
     """
 
     def __init__(
@@ -80,31 +75,19 @@ class MLP(nn.Module):
         activation: str = "tanh",
         angles: Sequence[int] = (),
         angle_pairs: bool = False,
-        rotation_invariant: bool = False,
     ) -> None:
         super().__init__()
         self._act = activation_fn(activation)
         self.angles = check_angles(angles, input_dim)
         check_angle_pairs(angle_pairs, self.angles)
-        check_angle_pairs(rotation_invariant, self.angles, "rotation_invariant")
-        if angle_pairs and rotation_invariant:
-            raise ValueError(
-                "rotation_invariant reads the angles' differences alone: not with angle_pairs"
-            )
-        self.angle_pairs, self.rotation_invariant = angle_pairs, rotation_invariant
+        self.angle_pairs = angle_pairs
         rest = [i for i in range(input_dim) if i not in self.angles]
-        paired = angle_pairs or rotation_invariant
-        pairs = torch.combinations(torch.arange(len(self.angles)), 2) if paired else None
+        pairs = torch.combinations(torch.arange(len(self.angles)), 2) if angle_pairs else None
         self.register_buffer("angle_index", torch.tensor(self.angles, dtype=torch.long), False)
         self.register_buffer("rest_index", torch.tensor(rest, dtype=torch.long), False)
         self.register_buffer("pair_index", pairs, False)
         n_pairs = 0 if pairs is None else len(pairs)
-        width = (
-            len(rest) + 2 * n_pairs
-            if rotation_invariant
-            else input_dim + len(self.angles) + 4 * n_pairs
-        )
-        dims = [width] + [hidden_dim] * n_hidden
+        dims = [input_dim + len(self.angles) + 4 * n_pairs] + [hidden_dim] * n_hidden
         self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
         self.out = nn.Linear(hidden_dim, output_dim, bias=False)
         self.activation = activation
@@ -116,14 +99,10 @@ class MLP(nn.Module):
         ``angles``, ``x_rest`` the other coordinates in order, then with ``angle_pairs``
         ``(cos d, sin d, cos s, sin s)`` of the pairs' differences ``d = x_i − x_j`` and sums
         ``s = x_i + x_j``: ``(..., d) -> (..., d + a + 4·pairs)``; ``x`` itself without
-        angles. ``rotation_invariant``: ``(x_rest, cos d, sin d)``,
-        ``(..., d) -> (..., d − a + 2·pairs)``."""
+        angles."""
         if not self.angles:
             return x
         a = x[..., self.angle_index]
-        if self.rotation_invariant:
-            d = self._pair_angles(a)[0]
-            return torch.cat([x[..., self.rest_index], d.cos(), d.sin()], -1)
         parts = [x[..., self.rest_index], a.cos(), a.sin()]
         if self.pair_index is not None:
             d, s = self._pair_angles(a)
@@ -139,18 +118,10 @@ class MLP(nn.Module):
         """``(∂features/∂x)ᵀ g``: ``g (..., d + a + 4·pairs)`` at ``x (..., d)`` to
         ``(..., d)``; an angle's entry is ``−sin x_i · g_cos + cos x_i · g_sin``, plus, for
         each pair it is in, ``±(−sin d · g_cos d + cos d · g_sin d)`` (``+`` first, ``−``
-        second of the pair) and ``−sin s · g_cos s + cos s · g_sin s`` (the differences'
-        terms alone with ``rotation_invariant``)."""
+        second of the pair) and ``−sin s · g_cos s + cos s · g_sin s``."""
         if not self.angles:
             return g
         n, m, a = len(self.rest_index), len(self.angles), x[..., self.angle_index]
-        if self.rotation_invariant:
-            d = self._pair_angles(a)[0]
-            g_cos_d, g_sin_d = g[..., n:].chunk(2, -1)
-            from_d = d.cos() * g_sin_d - d.sin() * g_cos_d
-            g_angle = torch.zeros_like(a).index_add(-1, self.pair_index[:, 0], from_d)
-            g_angle = g_angle.index_add(-1, self.pair_index[:, 1], -from_d)
-            return self._scatter(x, g, g[..., :n], g_angle)
         g_rest, g_cos, g_sin = g[..., :n], g[..., n : n + m], g[..., n + m : n + 2 * m]
         g_angle = a.cos() * g_sin - a.sin() * g_cos
         if self.pair_index is not None:
@@ -160,10 +131,6 @@ class MLP(nn.Module):
             from_s = s.cos() * g_sin_s - s.sin() * g_cos_s
             g_angle = g_angle.index_add(-1, self.pair_index[:, 0], from_d + from_s)
             g_angle = g_angle.index_add(-1, self.pair_index[:, 1], from_s - from_d)
-        return self._scatter(x, g, g_rest, g_angle)
-
-    def _scatter(self, x: Tensor, g: Tensor, g_rest: Tensor, g_angle: Tensor) -> Tensor:
-        """The raw input's ``(..., d)`` from its rest's and its angles' parts."""
         out = torch.zeros(g.shape[:-1] + x.shape[-1:], dtype=g.dtype, device=g.device)
         out[..., self.rest_index] = g_rest
         out[..., self.angle_index] = g_angle
@@ -171,14 +138,11 @@ class MLP(nn.Module):
 
     def features_jvp(self, x: Tensor, t: Tensor) -> Tensor:
         """``(∂features/∂x) t``: a tangent ``t (..., d)`` at ``x`` (broadcast against
-        it) to the features' width; an angle's pair is ``(−sin x_i, cos x_i) t_i``, a
+        it) to ``(..., d + a + 4·pairs)``; an angle's pair is ``(−sin x_i, cos x_i) t_i``, a
         difference's ``(−sin d, cos d)(t_i − t_j)``, a sum's ``(−sin s, cos s)(t_i + t_j)``."""
         if not self.angles:
             return t
         a, ta = x[..., self.angle_index], t[..., self.angle_index]
-        if self.rotation_invariant:
-            d, td = self._pair_angles(a)[0], self._pair_angles(ta)[0]
-            return torch.cat([t[..., self.rest_index], -d.sin() * td, d.cos() * td], -1)
         parts = [t[..., self.rest_index], -a.sin() * ta, a.cos() * ta]
         if self.pair_index is not None:
             (d, s), (td, ts) = self._pair_angles(a), self._pair_angles(ta)
