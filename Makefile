@@ -18,14 +18,20 @@ STAMP := $(VENV)/.installed
 
 venv: $(STAMP)
 
-# pip compiles every installed file on one core (over half of its time); compileall spreads
-# that over every core. A file written for a newer Python (torch ships one) does not
-# compile: pip ignores it, and so does this step (-qq, and its exit status).
+# pip compiles every installed file on one core (over half of its time). Instead torch's
+# files compile on a second core while pip installs the rest (pip's install runs on one),
+# then the rest on every core. Trees nothing here imports (sympy and networkx, which only
+# torch.compile loads; pip; setuptools; packages' own tests) are left to compile on first
+# import if ever. A file written for a newer Python (torch ships one) does not compile:
+# pip ignores it, and so does this step (-qq, and its exit status).
+SITE = $(VENV)/lib/python*/site-packages
+SKIP = /(sympy|networkx|mpmath|pip|setuptools)/|/tests/
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --no-compile "$(TORCH)" $(TORCH_INDEX)
-	$(BIN)/pip install --quiet --no-compile -e ".[dev,docs]"
-	$(BIN)/python -m compileall -qq -j 0 $(VENV)/lib || true
+	{ $(BIN)/python -m compileall -qq -j 1 -x '$(SKIP)' $(SITE)/torch || true; } & \
+	$(BIN)/pip install --quiet --no-compile -e ".[dev,docs]"; status=$$?; wait; exit $$status
+	$(BIN)/python -m compileall -qq -j 0 -x '$(SKIP)|/site-packages/torch/' $(SITE) || true
 	touch $(STAMP)
 
 fit: $(STAMP)
