@@ -1,4 +1,7 @@
-"""Figures for TensorBoard (matplotlib, imported only when a picture is drawn)."""
+"""Figures for TensorBoard (matplotlib, imported only when a picture is drawn).
+
+The rollout figures have fixed margins: ``tight_layout`` measures every label by laying
+the figure out once more, which took as long as drawing it (0.41 → 0.27 s a pair)."""
 
 from __future__ import annotations
 
@@ -37,7 +40,7 @@ def phase_portrait(r: Rollout, max_lines: int = 4):
     ax.set_ylabel("p" if d == 2 else "y")
     ax.set_title("true (solid) vs predicted (dashed)")
     ax.set_aspect("equal", adjustable="datalim")
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.17, right=0.96, bottom=0.12, top=0.92)
     return fig
 
 
@@ -67,9 +70,11 @@ def energy_over_time(r: Rollout, max_lines: int = 4):
             "conserve the energy exactly: it oscillates along them."
         )
         fig.text(0.01, 0.01, note, fontsize=7, wrap=True)
-        fig.tight_layout(rect=(0, 0.07, 1, 1))
-    else:
-        fig.tight_layout()
+    width = fig.get_figwidth()
+    bottom = 0.22 if r.has_frames else 0.14
+    fig.subplots_adjust(
+        left=0.85 / width, right=1 - 0.15 / width, bottom=bottom, top=0.85, wspace=0.4
+    )
     return fig
 
 
