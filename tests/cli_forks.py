@@ -1,12 +1,13 @@
 """``python -m hnn_pl`` without paying for the interpreter and its imports each time.
 
-Started once per test module: imports what the command line imports (torch, Lightning,
-the package), then reads one JSON request per line from stdin — ``{"argv", "cwd",
-"env", "unset", "stdout", "stderr"}`` — and runs each in a forked child exactly as
-``python -m hnn_pl *argv`` would in ``cwd``: the child's environment, ``sys.argv[0]``
-the package's ``__main__.py``, ``sys.path[0]`` the working directory (so a module a
-checkpoint names is importable there, as it would be), its stdout/stderr written to
-the named files, its exit status from :func:`hnn_pl.commands.main.main` the way the
+Started once per test module (client: ``tests/forks.py``): imports what the command line
+imports (torch, Lightning, the package), then reads one JSON request per line from
+stdin — ``{"argv", "cwd", "env", "unset", "stdout", "stderr"}`` and optionally
+``"script"`` — and runs each in a forked child exactly as ``python -m hnn_pl *argv``
+(or ``python SCRIPT *argv``) would in ``cwd``: the child's environment, ``sys.argv[0]``
+the package's ``__main__.py`` (or the script), ``sys.path[0]`` the working directory
+(the script's directory), so a module a checkpoint names is importable there, as it
+would be; its stdout/stderr written to the named files, its exit status the way the
 interpreter sets it. The parent answers each request with ``{"code": status}``.
 Nothing torch computes runs in the parent before a fork.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import runpy
 import sys
 import traceback
 
@@ -47,10 +49,14 @@ def _child(request: dict) -> int:
         os.environ.pop(name, None)
     for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
         os.dup2(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644), fd)
-    sys.argv = [MAIN, *request["argv"]]
-    sys.path[0] = os.getcwd()
+    script = request.get("script")
+    sys.argv = [script or MAIN, *request["argv"]]
+    sys.path[0] = os.path.dirname(os.path.abspath(script)) if script else os.getcwd()
     try:
-        main(request["argv"])
+        if script:
+            runpy.run_path(script, run_name="__main__")
+        else:
+            main(request["argv"])
         code = 0
     except SystemExit as error:
         code = _exit_status(error)

@@ -5,12 +5,11 @@ deprecation notice; what a script's run leaves is checked too (:data:`CHECKS`)."
 from __future__ import annotations
 
 import importlib.util
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from forks import Forks
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -85,22 +84,36 @@ def test_the_double_well_is_a_system_from_h_alone():
     torch.testing.assert_close(DoubleWell().vector_field(0.0, y), expected)
 
 
+@pytest.fixture(scope="module")
+def forks(tmp_path_factory):
+    """One fork server (``tests/cli_forks.py``, one thread as the examples ask) for the
+    scripts, and the file of what it printed itself while it imported the package."""
+    log = tmp_path_factory.mktemp("forks") / "imports.log"
+    server = Forks(log, env={"OMP_NUM_THREADS": "1"})
+    yield server, log
+    server.close()
+
+
+def test_importing_what_the_examples_import_prints_nothing(forks, tmp_path):
+    """The fork server's own imports (torch, Lightning, the package: what a script's
+    imports would print, which its forked run does not repeat) printed no noise."""
+    server, log = forks
+    code, _ = server.run([], tmp_path, {}, [], tmp_path, script=EXAMPLES / "double_well.py")
+    assert code == 0
+    printed = log.read_text()
+    assert not [word for word in NOISE if word in printed], printed
+
+
 @pytest.mark.parametrize("name", sorted(QUICK))
-def test_example_runs_as_a_script(name, tmp_path):
+def test_example_runs_as_a_script(name, tmp_path, forks):
+    """``python examples/NAME ARGS`` from an empty directory (in a forked child of the
+    fork server: the imports are paid once)."""
     out, cwd = tmp_path / "out", tmp_path / "cwd"
     cwd.mkdir()
     args = [a.format(out=out) for a in QUICK[name]]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(
-        [sys.executable, str(EXAMPLES / name), *args],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert done.returncode == 0, done.stderr
-    printed = done.stdout + done.stderr
+    code, stderr = forks[0].run(args, cwd, {}, [], tmp_path, script=EXAMPLES / name)
+    assert code == 0, stderr
+    printed = (tmp_path / "stdout").read_text() + stderr
     assert not [word for word in NOISE if word in printed], printed
     assert list(cwd.iterdir()) == [], "an example wrote into the directory it was run from"
     assert {p.name for p in out.iterdir()} == WRITES[name] if WRITES[name] else not out.exists()

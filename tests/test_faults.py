@@ -5,7 +5,6 @@ checkpoint is data; non-finite states get a status; writes are whole."""
 from __future__ import annotations
 
 import errno
-import json
 import math
 import os
 import queue
@@ -22,6 +21,7 @@ import fault_cases_recording
 import fault_cases_resume
 import pytest
 import torch
+from forks import Forks
 
 from hnn_pl.integrate import METHODS, Status, odeint
 
@@ -241,36 +241,8 @@ CASES |= fault_cases_resume.CASES
 CASES |= fault_cases_commands.CASES
 
 
-class _Forks:
-    """One ``tests/cli_forks.py`` interpreter: ``python -m hnn_pl`` cases in forked
-    children of a process that imported the package once (each case still its own
-    process: its exit status, its stderr, its working directory and environment)."""
-
-    def __init__(self) -> None:
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        self.proc = subprocess.Popen(
-            [sys.executable, str(ROOT / "tests" / "cli_forks.py")],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            env=env,
-            text=True,
-        )
-
-    def run(self, argv: list[str], cwd: Path, env: dict, unset: list[str], out: Path):
-        request = {"argv": argv, "cwd": str(cwd), "env": env, "unset": unset}
-        request |= {"stdout": str(out / "stdout"), "stderr": str(out / "stderr")}
-        self.proc.stdin.write(json.dumps(request) + "\n")
-        self.proc.stdin.flush()
-        code = json.loads(self.proc.stdout.readline())["code"]
-        return code, (out / "stderr").read_text()
-
-    def close(self) -> None:
-        self.proc.stdin.close()
-        self.proc.wait(timeout=60)
-
-
 def _run_case(case: str, tmp: Path, forks: queue.Queue) -> tuple[int, str, set[Path]]:
-    """``python -m hnn_pl`` for ``case`` in ``tmp`` (through a free :class:`_Forks`):
+    """``python -m hnn_pl`` for ``case`` in ``tmp`` (through a free :class:`~forks.Forks`):
     exit status, stderr, and the files it left that were not there before."""
     argv, files, _ = CASES[case]
     (tmp / "cwd").mkdir()
@@ -294,7 +266,7 @@ def cli_runs(request, tmp_path_factory):
         if item.originalname == "test_every_cli_failure_is_one_line_and_leaves_nothing"
     ]
     forks: queue.Queue = queue.Queue()
-    servers = [_Forks() for _ in range(2)]
+    servers = [Forks() for _ in range(2)]
     for server in servers:
         forks.put(server)
     pool = ThreadPoolExecutor(2)
