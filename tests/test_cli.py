@@ -388,7 +388,7 @@ def test_a_config_extends_its_base(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("config", ["spring.yaml", "spring_baseline.yaml"])
-def test_test_command_reports_losses_and_rollout_metrics(config, tmp_path):
+def test_test_command_reports_losses_and_rollout_metrics(config, tmp_path, short_rollouts):
     ckpt = _fit(config, tmp_path).trainer.checkpoint_callback.best_model_path
     # the default Trainer(inference_mode=True) must work too: the HNN field needs no autograd
     for inference_mode in ("false", "true"):
@@ -408,7 +408,7 @@ def test_test_command_reports_losses_and_rollout_metrics(config, tmp_path):
         assert all(torch.isfinite(v) for v in metrics.values())
 
 
-def test_predict_and_validate_commands(tmp_path):
+def test_predict_and_validate_commands(tmp_path, short_rollouts):
     ckpt = _fit("pendulum.yaml", tmp_path).trainer.checkpoint_callback.best_model_path
     cli = cli_main(
         ["validate", "--config", "pendulum.yaml", "--ckpt_path", ckpt] + _common(tmp_path)
