@@ -337,6 +337,15 @@ def _default_tier_fits() -> frozenset[str]:
     return frozenset(fits)
 
 
+def test_the_default_tier_fits_every_model_and_data_class():
+    """The tiering of the three-step fits leaves every model class and every data class
+    of the state configs, and each (model, data, objective), fitted in the default tier."""
+    state = [c for c in CONFIGS if not c.startswith("pixel")]
+    fast = _default_tier_fits()
+    assert {_fit_kind(c) for c in fast} == {_fit_kind(c) for c in state}
+    assert all(_model_twin_of(c) in fast for c in set(state) - fast if _model_twin_of(c))
+
+
 def _fit_case(config: str):
     fast = config in _default_tier_fits()
     return config if fast else pytest.param(config, marks=pytest.mark.slow)
