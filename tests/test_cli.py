@@ -285,10 +285,6 @@ def short_rollouts(monkeypatch):
     monkeypatch.setattr(hnn_pl.callbacks, "task_protocol", short)
 
 
-def _own_lines(config: str) -> dict:
-    return load_config_file(str(CONFIG_DIR / config))
-
-
 def _fit_kind(config: str) -> tuple:
     """What a fit exercises beyond options: the model class, the data class, the
     objective (the last value along the config's ``base:`` chain)."""
@@ -303,7 +299,7 @@ def _fit_kind(config: str) -> tuple:
 
 def _model_twin_of(config: str) -> str | None:
     """The base of a config whose own lines name only a model class and a run name."""
-    own = _own_lines(config)
+    own = load_config_file(str(CONFIG_DIR / config))
     trainer, model = own.get("trainer") or {}, own.get("model") or {}
     if set(own) - {"base", "trainer", "model"} or "base" not in own:
         return None
@@ -329,11 +325,11 @@ def _default_tier_fits() -> frozenset[str]:
             continue
         if config.startswith("chain2") and "_100" not in config and namesake in CONFIGS:
             continue
-        base = _model_twin_of(config)
-        if base in fits and _fit_kind(config) in kinds:
+        kind = _fit_kind(config)
+        if _model_twin_of(config) in fits and kind in kinds:
             continue
         fits.add(config)
-        kinds.add(_fit_kind(config))
+        kinds.add(kind)
     return frozenset(fits)
 
 
