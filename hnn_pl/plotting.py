@@ -63,6 +63,7 @@ def energy_over_time(r: Rollout, max_lines: int = 4):
     axes[0, 0].set(xlabel="t", ylabel="energy", title="energy: true (solid), predicted (dashed)")
     if r.h_pred is not None:
         axes[0, 1].set(xlabel="t", ylabel="H_θ", title="learned H_θ along the rollout")
+    bottom = 0.14
     if r.has_frames:
         dt = float(r.t[1] - r.t[0]) if len(r.t) > 1 else float("nan")
         note = (
@@ -70,8 +71,8 @@ def energy_over_time(r: Rollout, max_lines: int = 4):
             "conserve the energy exactly: it oscillates along them."
         )
         fig.text(0.01, 0.01, note, fontsize=7, wrap=True)
+        bottom = 0.22
     width = fig.get_figwidth()
-    bottom = 0.22 if r.has_frames else 0.14
     fig.subplots_adjust(
         left=0.85 / width, right=1 - 0.15 / width, bottom=bottom, top=0.85, wspace=0.4
     )
