@@ -237,6 +237,7 @@ _OWN_RECIPE = {
     **{f"chain{n}{size}_lnn": (("model", "loss"),) for n in (2, 3) for size in ("", "_100")},
     **{
         f"chain{n}{size}_mechanical_hnn": (("trainer", "max_steps"), ("model", "polish_steps"))
+        + ((("trainer", "precision"), ("data", "dtype")) if size else ())
         for n in (2, 3)
         for size in ("", "_100")
     },
