@@ -236,10 +236,13 @@ _OWN_RECIPE = {
     "spring_positions_mechanical_hnn": (("trainer", "max_steps"), ("data", "batch_size")),
     **{f"chain{n}{size}_lnn": (("model", "loss"),) for n in (2, 3) for size in ("", "_100")},
     **{
-        f"chain{n}{size}_mechanical_hnn": (("trainer", "max_steps"), ("model", "polish_steps"))
-        + ((("trainer", "precision"), ("data", "dtype")) if size else ())
+        f"chain{n}_100_mechanical_hnn": (
+            ("trainer", "max_steps"),
+            ("trainer", "precision"),
+            ("model", "polish_steps"),
+            ("data", "dtype"),
+        )
         for n in (2, 3)
-        for size in ("", "_100")
     },
 }
 
