@@ -2,7 +2,8 @@
 
 - :func:`load_checkpoint`: a checkpoint read as tensors and plain data only
   (``weights_only``); an empty, truncated, foreign or code-carrying file is one
-  ``ValueError`` line naming the file, never torch's advice to load it unsafely.
+  ``ValueError`` line naming the file, never torch's advice to load it unsafely nor
+  the warnings torch gives while reading bytes that turn out not to be a checkpoint.
 - :func:`write_atomic`, :func:`save_atomic`, :func:`atomic_checkpoint_io`: a file is
   written to a temporary name beside it and renamed into place, so a failure (a full
   disk, Ctrl-C) leaves the previous file and no partial one; a full disk is
@@ -25,6 +26,7 @@ import io
 import os
 import pickle
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +49,9 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if path.stat().st_size == 0:
         raise ValueError(f"checkpoint {path}: the file is empty")
     try:
-        ckpt = torch.load(path, weights_only=True, map_location="cpu")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ckpt = torch.load(path, weights_only=True, map_location="cpu")
     except pickle.UnpicklingError as err:
         found = [line for line in str(err).splitlines() if "Unsupported global:" in line]
         if not found:
@@ -70,6 +74,8 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(ckpt, dict):
         raise ValueError(f"checkpoint {path}: holds a {type(ckpt).__name__}, not a checkpoint")
     check_finite_weights(ckpt, f"checkpoint {path}")
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return ckpt
 
 
