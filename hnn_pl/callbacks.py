@@ -24,7 +24,7 @@ from hnn_pl.evaluation import (
     view_of,
 )
 from hnn_pl.loggers import run_directory
-from hnn_pl.safe_io import save_atomic
+from hnn_pl.safe_io import save_atomic, torch_load
 
 
 def check_starts_file(path: str, width: int) -> None:
@@ -40,7 +40,7 @@ def check_starts_file(path: str, width: int) -> None:
         read_positions_window(path, width // 2)
         return
     try:
-        y0 = torch.load(path, weights_only=True, map_location="cpu")
+        y0 = torch_load(path)
     except Exception:  # noqa: BLE001 - any unreadable file is the same user error
         raise ValueError(f"starts {path}: cannot be read as a torch-saved tensor") from None
     if isinstance(y0, dict):
@@ -346,7 +346,7 @@ class RolloutWriter(_DataProtocol, BasePredictionWriter):
 
         p, view = self.protocol, view_of(pl_module)
         csv = Path(self.starts).suffix == ".csv"
-        y0 = None if csv else torch.load(self.starts, weights_only=True)
+        y0 = None if csv else torch_load(self.starts)
         extra: dict[str, Any] = {}
         if not torch.is_tensor(y0):
             if is_pixel_model(pl_module):

@@ -4,6 +4,7 @@
   (``weights_only``); an empty, truncated, foreign or code-carrying file is one
   ``ValueError`` line naming the file, never torch's advice to load it unsafely nor
   the warnings torch gives while reading bytes that turn out not to be a checkpoint.
+- :func:`torch_load`: ``torch.load`` of plain data, silent when it fails.
 - :func:`write_atomic`, :func:`save_atomic`, :func:`atomic_checkpoint_io`: a file is
   written to a temporary name beside it and renamed into place, so a failure (a full
   disk, Ctrl-C) leaves the previous file and no partial one; a full disk is
@@ -49,9 +50,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if path.stat().st_size == 0:
         raise ValueError(f"checkpoint {path}: the file is empty")
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            ckpt = torch.load(path, weights_only=True, map_location="cpu")
+        ckpt = torch_load(path)
     except pickle.UnpicklingError as err:
         found = [line for line in str(err).splitlines() if "Unsupported global:" in line]
         if not found:
@@ -74,9 +73,20 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(ckpt, dict):
         raise ValueError(f"checkpoint {path}: holds a {type(ckpt).__name__}, not a checkpoint")
     check_finite_weights(ckpt, f"checkpoint {path}")
+    return ckpt
+
+
+def torch_load(path: str | os.PathLike) -> Any:
+    """``torch.load(path, weights_only=True, map_location="cpu")`` whose warnings are given
+    only if the load succeeds: on bytes that are not a torch file (say, random bytes
+    opening with a pickle PROTO opcode) torch warns before it fails, and the caller's
+    one-line refusal is all a user should read."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        obj = torch.load(path, weights_only=True, map_location="cpu")
     for w in caught:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return ckpt
+    return obj
 
 
 def check_finite_weights(ckpt: dict[str, Any], where: str) -> None:

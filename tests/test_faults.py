@@ -466,8 +466,9 @@ class _FullDisk:
 
 @pytest.mark.parametrize("seed", range(40))
 def test_random_bytes_are_refused_in_one_line_without_warnings(seed, tmp_path):
-    """Half the files open with a pickle PROTO opcode and a random protocol number, on
-    which torch warns before failing; the warning is noise once the file is refused."""
+    """A checkpoint, a starts file or a recording of random bytes. Half the files open
+    with a pickle PROTO opcode and a random protocol number, on which torch warns before
+    failing; the warning is noise once the file is refused."""
     import warnings
 
     from hnn_pl import safe_io
@@ -476,13 +477,22 @@ def test_random_bytes_are_refused_in_one_line_without_warnings(seed, tmp_path):
     data = rng.randbytes(rng.choice([16, 256, 4096]))
     if seed % 2 == 0:
         data = b"\x80" + bytes([rng.randrange(3, 256)]) + data[2:]
-    path = tmp_path / "model.ckpt"
+    path = tmp_path / "file.pt"
     path.write_bytes(data)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        with pytest.raises(ValueError, match=f"^checkpoint {re.escape(str(path))}: cannot be read"):
-            safe_io.load_checkpoint(path)
-    assert [str(w.message) for w in caught] == []
+    from hnn_pl.data.recording import load_recording
+    from hnn_pl.evaluation.observer import read_positions_window
+
+    loaders = {
+        "checkpoint": (safe_io.load_checkpoint, f"checkpoint {path}: cannot be read"),
+        "starts": (lambda p: read_positions_window(p, 2), f"starts {path}: cannot be read"),
+        "recording": (load_recording, "not a torch.save file of tensors"),
+    }
+    for load, message in loaders.values():
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(ValueError, match=re.escape(message)):
+                load(path)
+        assert [str(w.message) for w in caught] == []
 
 
 def test_a_full_disk_never_replaces_a_good_checkpoint(tmp_path, monkeypatch):

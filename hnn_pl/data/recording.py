@@ -46,6 +46,7 @@ import torch
 from torch import Tensor
 
 from hnn_pl.data.base import TrajectoryDataModule, require, split_sizes, thinned_count
+from hnn_pl.safe_io import torch_load
 from hnn_pl.systems.base import HamiltonianSystem, system_spec
 
 SUFFIXES = (".csv", ".npz", ".pt")
@@ -371,9 +372,7 @@ def _load_pt(path: Path) -> dict[str, Any]:
         )
     problem = None
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # torch's notes on pickle protocols
-            loaded = torch.load(path, weights_only=True, map_location="cpu")
+        loaded = torch_load(path)
     except pickle.UnpicklingError as err:
         problem = (
             "it holds Python objects other than tensors, numbers and dicts, which are never "

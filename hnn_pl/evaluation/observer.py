@@ -75,6 +75,7 @@ from torch import Tensor, nn
 
 from hnn_pl.evaluation.base import in_dtype
 from hnn_pl.integrate import odeint_windows
+from hnn_pl.safe_io import torch_load
 
 F64 = torch.float64
 #: the observed positions a start is inferred from when the data observe positions alone
@@ -536,7 +537,7 @@ def read_positions_window(path: str | Path, k: int) -> PositionsWindow:
     if path.suffix == ".csv":
         return _csv_window(path, k)
     try:
-        obj = torch.load(path, weights_only=True, map_location="cpu")
+        obj = torch_load(path)
     except Exception:  # noqa: BLE001 - any unreadable file is the same user error
         raise ValueError(f"starts {path}: cannot be read as a torch-saved dict") from None
     return _dict_window(path, obj, k)
