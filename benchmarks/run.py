@@ -4,6 +4,7 @@
 runs alone: ``python benchmarks/integrators.py [--quick] [--out BENCHMARKS.md]``.
 """
 
+import chain_fit
 import data
 import independent
 import integrators
@@ -32,5 +33,6 @@ if __name__ == "__main__":
         "observer": observer,
         "positions": positions,
         "lagrangian": lagrangian_step,
+        "chain_fit": chain_fit,
     }
     main(topics, REPORT)

@@ -34,6 +34,7 @@ UNTRAINED = (
     "threads",
     "observer",
     "lagrangian",
+    "chain_fit",
 )
 #: the topics tests/test_bench_trained.py runs (``slow``)
 TRAINED = ("symplectic", "independent", "trajectory", "positions")
@@ -140,3 +141,21 @@ def test_integrator_accuracy_ordering(report):
 def test_other_tables(report):
     has_headers(report, ("one solve_ivp per start", "HNN autograd (ms)", "in Trainer.fit (ms)"))
     has_headers(report, ("cache hit (ms)", "command time (s)", "seeds reached", "busy / idle"))
+
+
+def test_chain_fit_rows_add_up(report):
+    """Each 800-chunk config's row: its own max_steps, matrix products within the step,
+    and the fit's estimate steps × step."""
+    (header, rows), *_ = [t for t in tables(report) if "steps × step (s)" in t[0]]
+    col = {name: i for i, name in enumerate(header)}
+    assert [r[col["config"]] for r in rows] == [
+        "`chain2.yaml`",
+        "`chain2_mechanical_hnn.yaml`",
+        "`chain2_mechanical_hnn_fast.yaml`",
+    ]
+    assert [int(r[col["steps"]]) for r in rows] == [8000, 8000, 4500]
+    for r in rows:
+        step = float(r[col["step (ms)"]])
+        assert 0 < float(r[col["of which matrix products (ms)"]]) < step
+        estimate = int(r[col["steps"]]) * step / 1e3
+        assert float(r[col["steps × step (s)"]]) == pytest.approx(estimate, rel=0.01, abs=1)
