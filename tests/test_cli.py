@@ -170,7 +170,8 @@ def test_short_fit_logs_scalars_images_and_checkpoint(config, tmp_path):
     assert {"rollout/phase_portrait", "rollout/energy"} <= set(tags["images"])
 
 
-_TWIN = re.compile(r"_(baseline|dissipative|lnn|mechanical_hnn|mechanical_lnn)$")
+#: a twin config's suffix: its model, then an optional recipe of it (``_fast``)
+_TWIN = re.compile(r"_(baseline|dissipative|lnn|mechanical_hnn|mechanical_lnn)(_fast)?$")
 #: the model class of a twin config, by its suffix
 _TWIN_CLASS = {
     "dissipative": "DissipativeHNN",
@@ -224,7 +225,8 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
     assert (trainer["accelerator"], trainer["devices"], trainer["max_epochs"]) == ("cpu", 1, -1)
     assert trainer["inference_mode"] is False and trainer["enable_model_summary"] is False
     task = re.sub(
-        r"(_fast|_traj|_positions(_fd)?|_100)?(_baseline|_dissipative|_lnn|_mechanical_[hl]nn)?$",
+        r"(_fast|_traj|_positions(_fd)?|_100)?(_baseline|_dissipative|_lnn|_mechanical_[hl]nn)?"
+        r"(_fast)?$",
         "",
         Path(config).stem,
     )
@@ -234,6 +236,7 @@ def test_every_config_resolves_with_the_shared_trainer_defaults(config):
 #: twins with a recipe of their own: the settings they may set apart from their HNN config
 _OWN_RECIPE = {
     "spring_positions_mechanical_hnn": (("trainer", "max_steps"), ("data", "batch_size")),
+    "chain2_mechanical_hnn_fast": (("trainer", "max_steps"), ("model", "hidden_dim")),
     **{f"chain{n}{size}_lnn": (("model", "loss"),) for n in (2, 3) for size in ("", "_100")},
     **{
         f"chain{n}_100_mechanical_hnn": (

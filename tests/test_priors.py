@@ -110,7 +110,7 @@ def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     data = json.loads((tmp_path / "C.json").read_text())
     assert data["meta"]["recipe"] == "priors" and data["meta"]["max_steps"] == 2
     runs = {r["model"]: r for r in data["runs"]}
-    assert set(runs) == set(priors.MODELS)
+    assert set(runs) == set(priors.MODELS) - set(priors.VARIANTS)  # no 100-chunk variant
     assert runs["mechanical_hnn"]["config"] == "chain2_100_mechanical_hnn.yaml"
     assert runs["lnn"]["chart"] == "ChainPendulum"
     for r in runs.values():
@@ -152,6 +152,17 @@ def test_summaries_are_medians_and_worst_and_the_targets_read_them():
     assert "| chain3 | 800 chunks | hnn | 1 | 2.00e-04 (2.00e-04) | — | 20 |" in page
     assert "chain2 5.60e-05, published 5.70e-05; chain3 9.10e-05, published 9.51e-05." in page
     assert page.count("- 800 chunks, hnn:") == 1
+    fast = {"task": "chain2", "data": "800 chunks", "model": "mechanical_hnn_fast"}
+    fast.update(rollout_error=5e-4, chaos_floor=5.6e-5)
+    page = priors.render(
+        [{**fast, "seed": s, "train_s": t} for s, t in enumerate((560.0, 610.0, 590.0))],
+        {"command": "c", "machine": "m", "wall_s": 1.0},
+    )
+    assert "- 800 chunks, mechanical_hnn_fast, training time: 590 s (target ≤ 600 s" in page
+    assert (
+        "| chain2 | 800 chunks | mechanical_hnn_fast | 3 | 5.00e-04 (5.00e-04) | 8.30e-04 (HNN)"
+        in page
+    )
 
 
 def test_a_lagrangian_model_without_the_data_s_system_is_refused():
@@ -166,6 +177,9 @@ def test_rows_put_the_costliest_data_first():
     rows = priors.rows(["spring", "chain2"], ["hnn", "lnn"], (100, 800))
     assert [r.data for r in rows] == ["800 chunks"] * 2 + ["100 chunks"] * 2 + ["fast recipe"] * 2
     assert priors.rows(["chain2"])[0] == priors.Row("chain2", "100 chunks", "baseline")
+    fast = [r for r in priors.rows(None, None, (100, 800)) if r.model == "mechanical_hnn_fast"]
+    assert fast == [priors.Row("chain2", "800 chunks", "mechanical_hnn_fast")]
+    assert priors.config_of(fast[0]) == ("chain2_mechanical_hnn_fast.yaml", ())
 
 
 @pytest.mark.parametrize(

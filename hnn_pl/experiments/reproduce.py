@@ -126,7 +126,8 @@ def _run_arguments(parser: ArgumentParser) -> None:
         default=None,
         choices=[*paper.MODELS, *(m for m in priors.MODELS if m not in paper.MODELS)],
         help="default: baseline hnn (recipe priors: all but dissipative); dissipative runs "
-        "where a task has it (real_pendulum)",
+        "where a task has it (real_pendulum), mechanical_hnn_fast (a recipe of the "
+        "structured HNN) where its config is (chain2, 800 chunks)",
     )
     parser.add_argument(
         "--recipe",
