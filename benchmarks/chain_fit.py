@@ -3,12 +3,10 @@ the matrix products' share of it, and the fit it adds up to (steps × step)."""
 
 from __future__ import annotations
 
-import statistics
 import sys
-import time
 
 import torch
-from common import main, ms, quiet_cli, table
+from common import main, measure, ms, quiet_cli, table
 
 TITLE = "Chain pendulum, 800 chunks: the fit's cost"
 #: the bundled configs, with what they train
@@ -41,17 +39,6 @@ def stepper(config: str):
     return step, cli.trainer.max_steps
 
 
-def time_steps(step, n: int, blocks: int) -> float:
-    """Median over ``blocks`` of the mean seconds of ``n`` steps."""
-    times = []
-    for _ in range(blocks):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            step()
-        times.append((time.perf_counter() - t0) / n)
-    return statistics.median(times)
-
-
 def gemm_share(step, n: int) -> float:
     """Seconds per step in matrix products (:data:`GEMMS`), by torch's profiler."""
     from torch.profiler import ProfilerActivity, profile
@@ -65,21 +52,21 @@ def gemm_share(step, n: int) -> float:
 
 def run(quick: bool) -> str:
     torch.set_num_threads(1)
-    n, blocks = (3, 1) if quick else (20, 3)
+    n, run_time = (3, 0.3) if quick else (20, 6.0)
     rows = []
     for config, what in CONFIGS:
         step, steps = stepper(config)
         for _ in range(3):
             step()
-        s = time_steps(step, n, blocks)
+        s = measure(step, run_time)[0]
         g = gemm_share(step, n)
         rows.append([f"`{config}`", what, steps, ms(s), ms(g), f"{steps * s:.0f}"])
     return (
         "One training step of each 800-chunk config at its own batch (200 five-sample "
         "chunks, RK4, float32), 1 thread: the model's loss, `backward` and AdamW, without "
-        f"Lightning's loop; median of {blocks} blocks of {n} steps. Matrix products: torch "
-        "profiler's self time of `mm`, `addmm` and `bmm`. A fit adds validation and "
-        "Lightning's loop to steps × step.\n\n"
+        f"Lightning's loop; median of `blocked_autorange` ({run_time} s). Matrix products: "
+        f"torch profiler's self time of `mm`, `addmm` and `bmm` over {n} steps. A fit adds "
+        "validation and Lightning's loop to steps × step.\n\n"
         + table(
             "config | model | steps | step (ms) | of which matrix products (ms) | steps × step (s)",
             rows,
