@@ -560,6 +560,7 @@ def _reproduce(tmp: Path) -> subprocess.Popen:
     """A ``reproduce`` of two long runs on one worker, started; returns once it says its
     runs have started."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "HNN_PL_CACHE": str(tmp / "cache")}
+    env["TMPDIR"] = str(tmp)  # a killed reproduce cannot remove its models' folder
     argv = ["--tasks", "real_pendulum", "--models", "hnn", "--seeds", "2", "--workers", "1"]
     proc = subprocess.Popen(
         [sys.executable, "-m", "hnn_pl", "reproduce", *argv, "--max-steps", "1000000"],
