@@ -477,21 +477,19 @@ def _targets(summary: list[dict]) -> list[str]:
     if not chain:
         return []
     lines = ["", f"## Targets ({PUBLISHED_TASK}, medians)", ""]
-    for chunks, model, bound, why in TARGETS:
-        e = chain.get((chunks, model), {})
-        if "rollout_error" in e:
-            value, verdict = _verdict(e, "rollout_error", bound)
-            lines.append(
-                f"- {chunks} chunks, {model}: {value:.2e} (target ≤ {bound:.2e}, {why}): {verdict}"
-            )
-    for chunks, model, bound, why in TIME_TARGETS:
-        e = chain.get((chunks, model), {})
-        if "train_s" in e:
-            value, verdict = _verdict(e, "train_s", bound)
-            lines.append(
-                f"- {chunks} chunks, {model}, training time: {value:.0f} s (target ≤ "
-                f"{bound:.0f} s, {why}): {verdict}"
-            )
+    kinds = (
+        (TARGETS, "rollout_error", "", "{:.2e}"),
+        (TIME_TARGETS, "train_s", ", training time", "{:.0f} s"),
+    )
+    for targets, key, what, number in kinds:
+        for chunks, model, bound, why in targets:
+            e = chain.get((chunks, model), {})
+            if key in e:
+                value, verdict = _verdict(e, key, bound)
+                lines.append(
+                    f"- {chunks} chunks, {model}{what}: {number.format(value)} (target ≤ "
+                    f"{number.format(bound)}, {why}): {verdict}"
+                )
     floor = _floors(list(chain.values())).get(PUBLISHED_TASK)
     if floor is not None:
         off = abs(floor / PUBLISHED_FLOOR - 1)
