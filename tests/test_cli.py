@@ -294,46 +294,41 @@ def short_rollouts(monkeypatch):
 
 def _fit_kind(config: str) -> tuple:
     """What a fit exercises beyond options: the model class, the data class, the
-    objective (the last value along the config's ``base:`` chain)."""
-    kind = {"model": None, "data": None, "objective": None}
+    objective and what is observed (the last value of each along the config's ``base:``
+    chain)."""
+    kind = {"model": None, "data": None, "objective": None, "observe": None}
     for _, lines in config_chain(str(CONFIG_DIR / config)):
         model, data = lines.get("model") or {}, lines.get("data") or {}
         kind["model"] = model.get("class_path", kind["model"])
         kind["data"] = data.get("class_path", kind["data"])
         kind["objective"] = (model.get("init_args") or {}).get("objective", kind["objective"])
+        kind["observe"] = (data.get("init_args") or {}).get("observe", kind["observe"])
     return tuple(kind.values())
 
 
-def _model_twin_of(config: str) -> str | None:
-    """The base of a config whose own lines name only a model class and a run name."""
-    own = load_config_file(str(CONFIG_DIR / config))
-    trainer, model = own.get("trainer") or {}, own.get("model") or {}
-    if set(own) - {"base", "trainer", "model"} or "base" not in own:
-        return None
-    if set(trainer) - {"logger"} or set(model) != {"class_path"}:
-        return None
-    return own["base"] if own["base"].endswith(".yaml") else f"{own['base']}.yaml"
+def _base_of(config: str) -> str | None:
+    """The config's ``base:`` as a file name (``None``: it has none)."""
+    base = load_config_file(str(CONFIG_DIR / config)).get("base")
+    return None if base is None else base if base.endswith(".yaml") else f"{base}.yaml"
 
 
 @functools.cache
 def _default_tier_fits() -> frozenset[str]:
     """The configs :func:`test_every_state_config_fits_three_steps` fits in the default
-    tier. Not there: the 3-link chain's twins of 2-link configs (their code is the 2-link
-    one's; ``chain3_100.yaml`` keeps the 3-link data in the default tier); the 800-chunk
-    2-link configs whose 100-chunk namesake fits there (the same model and data classes;
-    sizes, steps and ``angle_pairs`` apart, whose both values other configs fit); and a
-    model twin (:func:`_model_twin_of`) whose base fits there when an earlier config
-    already fits its model class on its data class and objective (:func:`_fit_kind`).
-    The slow tier fits every config."""
+    tier: every config without a base (each task's data), and a config with one unless
+    an earlier config already fits its kind (model class, data class, objective,
+    observation: :func:`_fit_kind`), as most of a task's recipe variants (``_fast``,
+    ``_traj``, the 100-chunk chain, a model swapped in) do: their code is the same, their
+    options are parsed and checked by ``test_every_config_resolves_…``.
+    Of the 3-link chain's configs only ``chain3_100.yaml`` (the 2-link code on other
+    data). The slow tier fits every config."""
     fits, kinds = set(), set()
     for config in sorted(c for c in CONFIGS if not c.startswith("pixel")):
-        namesake = config.replace("chain2", "chain2_100", 1)
-        if config.startswith("chain3") and config != "chain3_100.yaml":
-            continue
-        if config.startswith("chain2") and "_100" not in config and namesake in CONFIGS:
-            continue
         kind = _fit_kind(config)
-        if _model_twin_of(config) in fits and kind in kinds:
+        if config.startswith("chain3"):
+            fits |= {config} if config == "chain3_100.yaml" else set()
+            continue
+        if _base_of(config) is not None and kind in kinds:
             continue
         fits.add(config)
         kinds.add(kind)
@@ -342,11 +337,12 @@ def _default_tier_fits() -> frozenset[str]:
 
 def test_the_default_tier_fits_every_model_and_data_class():
     """The tiering of the three-step fits leaves every model class and every data class
-    of the state configs, and each (model, data, objective), fitted in the default tier."""
+    of the state configs, each (model, data, objective, observation) and every config
+    without a base, fitted in the default tier."""
     state = [c for c in CONFIGS if not c.startswith("pixel")]
     fast = _default_tier_fits()
     assert {_fit_kind(c) for c in fast} == {_fit_kind(c) for c in state}
-    assert all(_model_twin_of(c) in fast for c in set(state) - fast if _model_twin_of(c))
+    assert {c for c in state if _base_of(c) is None and not c.startswith("chain3")} <= fast
 
 
 def _fit_case(config: str):
@@ -362,6 +358,9 @@ def test_every_state_config_fits_three_steps(config, tmp_path, data_cache, short
     cache = data_cache
     extra = ["--model.init_args.inner_steps=1", f"--data.init_args.cache_dir={cache}"]
     extra += ["--trainer.limit_val_batches=2"]
+    if config.startswith("chain"):  # the benchmark's 3 s of 300 trajectories cost seconds
+        extra += [f"--data.init_args.{split}=8" for split in ("n_train", "n_val", "n_test")]
+        extra += ["--data.init_args.horizon=0.3"]
     cli = _fit(config, tmp_path, steps=3, extra=extra)
     assert cli.trainer.global_step == 3
     assert type(cli.model).__name__ == _model_class(config)
