@@ -56,6 +56,30 @@ def _tags(log_dir: str) -> dict[str, list[str]]:
     return acc.Tags()
 
 
+def test_a_command_builds_the_parser_of_its_own_subcommand_only(monkeypatch, capsys):
+    """``validate …`` builds the validate parser alone; ``--help`` still lists all four."""
+    from lightning.pytorch.cli import LightningCLI
+
+    built, prepare = [], LightningCLI._prepare_subcommand_parser
+
+    def record(self, klass, subcommand, **kwargs):
+        built.append(subcommand)
+        return prepare(self, klass, subcommand, **kwargs)
+
+    monkeypatch.setattr(LightningCLI, "_prepare_subcommand_parser", record)
+    out = _resolved_text("spring_fast.yaml")
+    assert built == ["fit"] and "max_steps: 300" in out
+    built.clear()
+    with pytest.raises(SystemExit):
+        cli_main(["validate", "--config", "spring_fast.yaml", "--print_config"])
+    assert built == ["validate"] and "ckpt_path" in capsys.readouterr().out
+    built.clear()
+    with pytest.raises(SystemExit) as exit_:
+        cli_main(["--help"])
+    assert exit_.value.code == 0 and built == ["fit", "validate", "test", "predict"]
+    assert "{fit,validate,test,predict}" in capsys.readouterr().out
+
+
 def test_bare_config_names_resolve_to_the_bundled_dir(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert resolve_config("spring.yaml") == str(CONFIG_DIR / "spring.yaml")

@@ -125,6 +125,21 @@ class HNNCLI(LightningCLI):
     is the only line a command prints, and a run refused before it logged anything
     takes back its files (:class:`~hnn_pl.loggers.RefusedRun`)."""
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        argv = kwargs.get("args")
+        first = str(argv[0]) if isinstance(argv, (list, tuple)) and argv else None
+        self._named_subcommand = first if first in LightningCLI.subcommands() else None
+        super().__init__(*args, **kwargs)
+
+    def subcommands(self) -> dict[str, set[str]]:  # type: ignore[override]
+        """LightningCLI's subcommands, or only the one the command line starts with: each
+        subcommand's parser reads the trainer's, model's and data's signatures again, and
+        three unused ones were a third of a command's parsing (``--help`` alone, or a
+        command line starting with anything else, still gets all four)."""
+        every = LightningCLI.subcommands()
+        named = self._named_subcommand
+        return every if named is None else {named: every[named]}
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data.state_dim", "model.init_args.input_dim", apply_on="instantiate")
         parser.add_argument(
