@@ -1,6 +1,6 @@
 # Two commands do all set-up on a fresh machine with Python ≥ 3.10:
 #   make fit    # venv + install + train the default config (CONFIG=spring_fast.yaml)
-#   make test   # venv + install + the test suite's default tier (about 3½ min on two cores)
+#   make test   # venv + install + the test suite's default tier (3½–5 min on two cores)
 # make test-all runs every test, the `slow` end-to-end tier too (about 9 min).
 PYTHON ?= python3
 VENV ?= .venv
