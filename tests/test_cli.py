@@ -343,19 +343,19 @@ def _default_tier_fits() -> frozenset[str]:
     an earlier config already fits its kind (model class, data class, objective,
     observation: :func:`_fit_kind`), as most of a task's recipe variants (``_fast``,
     ``_traj``, the 100-chunk chain, a model swapped in) do: their code is the same, their
-    options are parsed and checked by ``test_every_config_resolves_…``.
+    options are parsed and type-checked by ``test_every_config_resolves_…``.
     Of the 3-link chain's configs only ``chain3_100.yaml`` (the 2-link code on other
     data). The slow tier fits every config."""
     fits, kinds = set(), set()
     for config in sorted(c for c in CONFIGS if not c.startswith("pixel")):
         kind = _fit_kind(config)
         if config.startswith("chain3"):
-            fits |= {config} if config == "chain3_100.yaml" else set()
-            continue
-        if _base_of(config) is not None and kind in kinds:
-            continue
-        fits.add(config)
-        kinds.add(kind)
+            new = config == "chain3_100.yaml"
+        else:
+            new = _base_of(config) is None or kind not in kinds
+        if new:
+            fits.add(config)
+            kinds.add(kind)
     return frozenset(fits)
 
 
