@@ -20,12 +20,14 @@ venv: $(STAMP)
 
 # pip compiles every installed file on one core (over half of its time). Instead torch's
 # files compile on a second core while pip installs the rest (pip's install runs on one),
-# then the rest on every core. Trees nothing here imports (sympy and networkx, which only
+# then the rest on every core. Trees nothing here imports (networkx, which only
 # torch.compile loads; pip; setuptools; packages' own tests) are left to compile on first
-# import if ever. A file written for a newer Python (torch ships one) does not compile:
-# pip ignores it, and so does this step (-qq, and its exit status).
+# import if ever. sympy and mpmath are compiled: `import lightning` loads torch._dynamo and
+# with it 470 of their modules, which with PYTHONDONTWRITEBYTECODE set and no bytecode every
+# process would compile again. A file written for a newer Python (torch ships one) does
+# not compile: pip ignores it, and so does this step (-qq, and its exit status).
 SITE = $(VENV)/lib/python*/site-packages
-SKIP = /(sympy|networkx|mpmath|pip|setuptools)/|/tests/
+SKIP = /(networkx|pip|setuptools)/|/tests/
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --no-compile "$(TORCH)" $(TORCH_INDEX)
