@@ -58,10 +58,22 @@ _LOCK = threading.Lock()
 _TRAINED: dict[str, object] = {}
 
 
+def _subprocess(argv: list[str], cwd: Path, env: dict) -> None:
+    """``python -m hnn_pl *argv`` in a process of its own, ``env`` added."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **env}
+    cmd = [sys.executable, "-m", "hnn_pl", *argv]
+    subprocess.run(cmd, cwd=cwd, env=env, check=True, capture_output=True)
+
+
+#: how :func:`trained_checkpoint` runs its fit: ``run(argv, cwd, env)``, raising if it
+#: fails (the fault table's fixture sets a forked child of its CLI server: no imports)
+RUN: Callable[[list[str], Path, dict], None] = _subprocess
+
+
 def trained_checkpoint() -> bytes:
     """The bytes of ``fit --config spring_traj.yaml --config rec_a.yaml
     --trainer.max_steps=2`` (learned states, one per sample), made once per session in a
-    process and a directory of its own."""
+    process and a directory of its own (:data:`RUN`)."""
     with _LOCK:
         if "bytes" not in _TRAINED:
             tmp = tempfile.TemporaryDirectory(prefix="fault_resume_")
@@ -71,14 +83,7 @@ def trained_checkpoint() -> bytes:
             argv = ["fit", "--config", "spring_traj.yaml", "--config", "rec_a.yaml"]
             argv += ["--trainer.max_steps=2", "--trainer.logger=false"]
             argv += [f"--trainer.default_root_dir={cwd}", "--trainer.enable_progress_bar=false"]
-            env = {**os.environ, "PYTHONPATH": str(ROOT), "HNN_PL_CACHE": str(cwd / "cache")}
-            subprocess.run(
-                [sys.executable, "-m", "hnn_pl", *argv],
-                cwd=cwd,
-                env=env,
-                check=True,
-                capture_output=True,
-            )
+            RUN(argv, cwd, {"HNN_PL_CACHE": str(cwd / "cache")})
             _TRAINED["bytes"] = (cwd / "checkpoints" / "last.ckpt").read_bytes()
         return _TRAINED["bytes"]
 

@@ -259,23 +259,42 @@ def _run_case(case: str, tmp: Path, forks: queue.Queue) -> tuple[int, str, set[P
 
 
 @pytest.fixture(scope="module")
-def cli_runs(request, tmp_path_factory):
+def cli_servers():
+    """Two fork servers of ``python -m hnn_pl`` (:class:`~forks.Forks`) in a queue: a test
+    takes one, runs a command in a forked child (no imports), and puts it back."""
+    forks: queue.Queue = queue.Queue()
+    servers = [Forks() for _ in range(2)]
+    for server in servers:
+        forks.put(server)
+    yield forks
+    for server in servers:
+        server.close()
+
+
+@pytest.fixture(scope="module")
+def cli_runs(request, tmp_path_factory, cli_servers):
     """The selected cases, two at a time (two fork servers)."""
     selected = [
         item.callspec.params["case"]
         for item in request.session.items
         if item.originalname == "test_every_cli_failure_is_one_line_and_leaves_nothing"
     ]
-    forks: queue.Queue = queue.Queue()
-    servers = [Forks() for _ in range(2)]
-    for server in servers:
-        forks.put(server)
+    forks = cli_servers
+
+    def forked(argv: list[str], cwd: Path, env: dict) -> None:
+        server = forks.get()
+        try:
+            code, stderr = server.run(argv, cwd, env, [], cwd)
+        finally:
+            forks.put(server)
+        assert code == 0, stderr
+
+    fault_cases_resume.RUN = forked
     pool = ThreadPoolExecutor(2)
     runs = {c: pool.submit(_run_case, c, tmp_path_factory.mktemp(c), forks) for c in selected}
     yield runs
     pool.shutdown(cancel_futures=True)
-    for server in servers:
-        server.close()
+    fault_cases_resume.RUN = fault_cases_resume._subprocess
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -528,25 +547,23 @@ def _small_filesystem(path: Path, size: str) -> bool:
     return subprocess.run(mount, capture_output=True).returncode == 0
 
 
-def test_fit_on_a_full_file_system_says_so_in_one_line(tmp_path):
+def test_fit_on_a_full_file_system_says_so_in_one_line(tmp_path, cli_servers):
     """A real full file system where the machine allows a small tmpfs (root on Linux):
     the cache does not fit; one line names the directory; nothing partial is left."""
     full = tmp_path / "full"
     if not _small_filesystem(full, "64k"):
         pytest.skip("cannot mount a small file system here (the ENOSPC tests above hold)")
     try:
-        env = {**os.environ, "PYTHONPATH": str(ROOT), "HNN_PL_CACHE": str(full / "cache")}
+        env = {"PYTHONPATH": str(ROOT), "HNN_PL_CACHE": str(full / "cache")}
         argv = [*FIT, "--data.init_args.n_trajectories=400", "--trainer.logger=false"]
-        proc = subprocess.run(
-            [sys.executable, "-m", "hnn_pl", *argv],
-            cwd=tmp_path,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
-        lines = [line for line in proc.stderr.splitlines() if line.strip()]
-        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        (tmp_path / "out").mkdir()
+        server = cli_servers.get()
+        try:
+            code, stderr = server.run(argv, tmp_path, env, ["HNN_PL_TRACEBACK"], tmp_path / "out")
+        finally:
+            cli_servers.put(server)
+        lines = [line for line in stderr.splitlines() if line.strip()]
+        assert code == 2 and "Traceback" not in stderr, stderr
         assert lines[-1] == f"python -m hnn_pl: error: no space left on {full / 'cache'}"
         assert list((full / "cache").iterdir()) == []
     finally:
