@@ -182,3 +182,31 @@ def test_error_floors_are_the_systems_computed_once_for_every_model(spring_dm, m
     monkeypatch.setattr(spring_dm, "system", MassSpring(alpha=2.0))
     p.run(TrueField(spring_dm.system), spring_dm)
     assert len(calls) == 3
+
+
+def test_a_rollout_integrates_the_truth_of_its_scored_starts_only(tmp_path, monkeypatch):
+    """A protocol over the first ``max_starts`` held-out starts integrates the truth from
+    those alone (the three-body's protocol scores 100 of 1,000), and gives the rows a
+    whole-set truth gives them (dopri5's error control is per row)."""
+    from hnn_pl.evaluation.views import rollout_target
+    from hnn_pl.systems import ThreeBody
+
+    dm = SimulatedData(ThreeBody(), n_trajectories=12, n_points=5, cache_dir=str(tmp_path))
+    dm.prepare_data()
+    dm.setup("test")
+    widths, real = [], dm.system.trajectory
+
+    def counted(y0, t):
+        widths.append(len(y0))
+        return real(y0, t)
+
+    monkeypatch.setattr(dm.system, "trajectory", counted)
+    p = evaluation.Protocol(t_end=1.0, n_points=20, max_starts=2)
+    t, y = rollout_target(dm, p)
+    assert widths == [2] and y.shape == (20, 2, dm.state_dim) and len(t) == 20
+    assert rollout_target(dm, p)[1].shape[1] == 2 and widths == [2]  # cached
+    _, whole = dm.rollout_target(1.0, 20)
+    assert widths == [2, 6] and whole.shape[1] == 6
+    torch.testing.assert_close(y, whole[:, :2], rtol=1e-7, atol=1e-9)
+    assert dm.rollout_target(1.0, 20, max_starts=4)[1].shape[1] == 4 and widths == [2, 6]
+    assert dm.rollout_target(None, max_starts=3)[1].shape[1] == 3

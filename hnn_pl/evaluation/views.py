@@ -16,6 +16,7 @@ protocols of :mod:`hnn_pl.evaluation.contract` (:class:`StateData`, read where p
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 from typing import Any
@@ -92,7 +93,7 @@ class StateView:
     def run(self, p: Any, dm: StateData, reader: Any = None, floors: bool = True) -> Rollout:
         """Roll out from ``dm.rollout_target(t_end, n_points)``'s starts under ``p``."""
         device = _device(self.model)
-        t, y_true = dm.rollout_target(p.t_end, p.n_points)
+        t, y_true = rollout_target(dm, p)
         y_true = y_true[:, : p.max_starts].to(device)
         n_obs = observer_samples(p, dm)
         y0 = y_true[0] if n_obs is None else observed_starts(self.model, dm, n_obs, p)
@@ -124,6 +125,15 @@ class StateView:
             r.f_true = f_true.to(y_pred)
             r.f_pred = field.vector_field(None, y_true.flatten(0, 1)).reshape(y_true.shape)
         return r
+
+
+def rollout_target(dm: StateData, p: Any) -> tuple[Tensor, Tensor]:
+    """``dm.rollout_target(p.t_end, p.n_points)``, asking for the protocol's first
+    ``p.max_starts`` starts alone where the data's ``rollout_target`` takes ``max_starts``
+    (the bundled simulated data: no truth is integrated that is not scored)."""
+    if p.max_starts is not None and "max_starts" in inspect.signature(dm.rollout_target).parameters:
+        return dm.rollout_target(p.t_end, p.n_points, max_starts=p.max_starts)
+    return dm.rollout_target(p.t_end, p.n_points)
 
 
 def observer_samples(p: Any, dm: StateData) -> int | None:
