@@ -87,16 +87,25 @@ def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
 ):
     """Every model on 100 chunks, scored beside the published numbers. Two steps leave
     stiff fields (the Lagrangians' above all): their scoring gets 60 dopri5 steps a
-    trajectory instead of 10,000, a row beyond them counting as stopped; the chaos
-    floor, the same for every model, is computed once."""
+    trajectory instead of 10,000, a row beyond them counting as stopped, and reads the
+    first 10 of the 100 test trajectories; the chaos floor, the same for every model,
+    is computed once, over all 100 (the protocol's number)."""
     from hnn_pl.data import ChainPendulumData
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(priors, "_FLOORS", {})
     score, floor, floors = ChainPendulumData.rollout_errors, ChainPendulumData.chaos_floor, []
+    truth, scored = ChainPendulumData.truth, []
 
     def budget(self, field, **kwargs):
-        return score(self, field, **{"max_steps": 60, **kwargs})
+        t, y = truth(self)
+        self.truth = lambda: (t, y[:, :10])
+        try:
+            errors = score(self, field, **{"max_steps": 60, **kwargs})
+        finally:
+            del self.truth
+        scored.append(errors.shape)
+        return errors
 
     def counted(self, *args, **kwargs):
         floors.append(1)
@@ -106,7 +115,7 @@ def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     monkeypatch.setattr(ChainPendulumData, "chaos_floor", counted)
     argv = ["--tasks", "chain2", "--max-steps", "2", "--seeds", "1", "--workers", "0"]
     assert command.main([*argv, "--out", "C.md"]) == 0
-    assert len(floors) == 1
+    assert len(floors) == 1 and set(scored) == {(10,)}
     data = json.loads((tmp_path / "C.json").read_text())
     assert data["meta"]["recipe"] == "priors" and data["meta"]["max_steps"] == 2
     runs = {r["model"]: r for r in data["runs"]}
