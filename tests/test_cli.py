@@ -422,8 +422,13 @@ def test_a_config_extends_its_base(tmp_path, monkeypatch):
     assert "objective" not in init_args and init_args["lr"] == 3e-3
 
 
-@pytest.mark.parametrize("config", ["spring.yaml", "spring_baseline.yaml"])
+@pytest.mark.parametrize(
+    "config", ["spring.yaml", pytest.param("spring_baseline.yaml", marks=pytest.mark.slow)]
+)
 def test_test_command_reports_losses_and_rollout_metrics(config, tmp_path, short_rollouts):
+    """``test`` of a fitted checkpoint under both inference modes (the HNN's field takes
+    its gradient without autograd); the baseline's ``test`` is in the default tier in
+    ``test_runs``."""
     ckpt = _fit(config, tmp_path).trainer.checkpoint_callback.best_model_path
     # the default Trainer(inference_mode=True) must work too: the HNN field needs no autograd
     for inference_mode in ("false", "true"):

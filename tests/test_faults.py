@@ -630,8 +630,11 @@ def _wait_for(condition, seconds: float = 120.0) -> bool:
 linux_only = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 
 
+@pytest.mark.slow
 @linux_only
 def test_killing_reproduce_leaves_no_worker_or_resource_tracker(tmp_path):
+    """``reproduce`` itself, its worker training: :func:`test_killing_the_pool_s_parent_
+    leaves_no_worker_or_resource_tracker` is the same pool with runs that wait."""
     proc = _reproduce(tmp_path)
     assert _wait_for(lambda: _worker(proc.pid) is not None and len(_children(proc.pid)) >= 2)
     children = _children(proc.pid)
@@ -681,15 +684,9 @@ if __name__ == "__main__":
 """
 
 
-@linux_only
-@pytest.mark.parametrize("delay", [0.0, 0.3, 1.5])
-@pytest.mark.parametrize("stop", ["ctrl-c", "dead worker"])
-def test_the_pool_stops_in_one_line_at_any_moment_of_its_life(tmp_path, delay, stop):
-    """Ctrl-C to the process group, or a worker killed, while the pool starts its worker,
-    while the worker imports, while it runs: ``run_jobs`` kills the pool, waits for its
-    manager thread and raises; nothing else is printed (no ``Bad file descriptor`` from
-    the interpreter's exit hook, no worker traceback) and the process exits."""
-    script = tmp_path / "runs.py"
+def _waiting_runs(tmp: Path) -> subprocess.Popen:
+    """:data:`_WAITING_RUNS` started in its own session; returns once it says so."""
+    script = tmp / "runs.py"
     script.write_text(_WAITING_RUNS)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(
@@ -702,6 +699,30 @@ def test_the_pool_stops_in_one_line_at_any_moment_of_its_life(tmp_path, delay, s
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     assert proc.stdout.readline() == "started\n"
+    return proc
+
+
+@linux_only
+def test_killing_the_pool_s_parent_leaves_no_worker_or_resource_tracker(tmp_path):
+    """SIGKILL to the process that runs the pool (no handler runs): its worker and the
+    resource tracker exit by themselves."""
+    proc = _waiting_runs(tmp_path)
+    assert _wait_for(lambda: _worker(proc.pid) is not None and len(_children(proc.pid)) >= 2)
+    children = _children(proc.pid)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert _wait_for(lambda: not any(Path(f"/proc/{c}").exists() for c in children), 30)
+
+
+@linux_only
+@pytest.mark.parametrize("delay", [0.0, 0.3, 1.5])
+@pytest.mark.parametrize("stop", ["ctrl-c", "dead worker"])
+def test_the_pool_stops_in_one_line_at_any_moment_of_its_life(tmp_path, delay, stop):
+    """Ctrl-C to the process group, or a worker killed, while the pool starts its worker,
+    while the worker imports, while it runs: ``run_jobs`` kills the pool, waits for its
+    manager thread and raises; nothing else is printed (no ``Bad file descriptor`` from
+    the interpreter's exit hook, no worker traceback) and the process exits."""
+    proc = _waiting_runs(tmp_path)
     time.sleep(delay)
     if stop == "dead worker":
         assert _wait_for(lambda: _worker(proc.pid) is not None, 60)

@@ -82,6 +82,7 @@ def test_a_failed_run_is_recorded_and_keeps_the_others(tmp_path):
     assert "| pendulum | fast recipe | lnn | failed |" in page
 
 
+@pytest.mark.slow
 def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     tmp_path, monkeypatch
 ):
@@ -89,7 +90,9 @@ def test_reproduce_tasks_chain2_runs_the_campaign_beside_the_published_numbers(
     stiff fields (the Lagrangians' above all): their scoring gets 60 dopri5 steps a
     trajectory instead of 10,000, a row beyond them counting as stopped, and reads the
     first 10 of the 100 test trajectories; the chaos floor, the same for every model,
-    is computed once, over all 100 (the protocol's number)."""
+    is computed once, over all 100 (the protocol's number). Slow tier: the default tier
+    has the campaign on the spring (above), the chain pendulum's scores and chaos floor
+    (``test_chain_pendulum``) and the page's published numbers (below)."""
     from hnn_pl.data import ChainPendulumData
 
     monkeypatch.chdir(tmp_path)
