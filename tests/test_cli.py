@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import io
+import itertools
 import re
 import subprocess
 import sys
@@ -336,36 +337,45 @@ def _base_of(config: str) -> str | None:
     return None if base is None else base if base.endswith(".yaml") else f"{base}.yaml"
 
 
+def _kind_pairs(kind: tuple) -> set[tuple]:
+    """Every pair of a fit's kind's parts (:func:`_fit_kind`), each with its positions."""
+    return {(i, j, kind[i], kind[j]) for i, j in itertools.combinations(range(len(kind)), 2)}
+
+
 @functools.cache
 def _default_tier_fits() -> frozenset[str]:
     """The configs :func:`test_every_state_config_fits_three_steps` fits in the default
     tier: every config without a base (each task's data), and a config with one unless
-    an earlier config already fits its kind (model class, data class, objective,
-    observation: :func:`_fit_kind`), as most of a task's recipe variants (``_fast``,
-    ``_traj``, the 100-chunk chain, a model swapped in) do: their code is the same, their
-    options are parsed and type-checked by ``test_every_config_resolves_…``.
+    earlier configs already fit every pair of its kind's parts (model class, data class,
+    objective, observation: :func:`_fit_kind`), as most of a task's recipe variants
+    (``_fast``, ``_traj``, the 100-chunk chain, a model swapped in) do: their code is the
+    same, their options are parsed and type-checked by ``test_every_config_resolves_…``.
     Of the 3-link chain's configs only ``chain3_100.yaml`` (the 2-link code on other
     data). The slow tier fits every config."""
-    fits, kinds = set(), set()
+    fits, pairs = set(), set()
     for config in sorted(c for c in CONFIGS if not c.startswith("pixel")):
         kind = _fit_kind(config)
         if config.startswith("chain3"):
             new = config == "chain3_100.yaml"
         else:
-            new = _base_of(config) is None or kind not in kinds
+            new = _base_of(config) is None or not _kind_pairs(kind) <= pairs
         if new:
             fits.add(config)
-            kinds.add(kind)
+            pairs |= _kind_pairs(kind)
     return frozenset(fits)
 
 
 def test_the_default_tier_fits_every_model_and_data_class():
     """The tiering of the three-step fits leaves every model class and every data class
-    of the state configs, each (model, data, objective, observation) and every config
-    without a base, fitted in the default tier."""
+    of the state configs, every pair of two parts of their kinds (model and data, model
+    and objective, data and observation, …) and every config without a base, fitted in
+    the default tier."""
     state = [c for c in CONFIGS if not c.startswith("pixel")]
     fast = _default_tier_fits()
-    assert {_fit_kind(c) for c in fast} == {_fit_kind(c) for c in state}
+    assert set().union(*map(_kind_pairs, map(_fit_kind, fast))) == set().union(
+        *map(_kind_pairs, map(_fit_kind, state))
+    )
+    assert {_fit_kind(c)[:2] for c in fast} == {_fit_kind(c)[:2] for c in state}
     assert {c for c in state if _base_of(c) is None and not c.startswith("chain3")} <= fast
 
 

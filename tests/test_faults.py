@@ -260,10 +260,12 @@ def _run_case(case: str, tmp: Path, forks: queue.Queue) -> tuple[int, str, set[P
 
 @pytest.fixture(scope="module")
 def cli_servers():
-    """Two fork servers of ``python -m hnn_pl`` (:class:`~forks.Forks`) in a queue: a test
-    takes one, runs a command in a forked child (no imports), and puts it back."""
+    """A fork server of ``python -m hnn_pl`` (:class:`~forks.Forks`) in a queue: a test
+    takes it, runs a command in a forked child (no imports), and puts it back. One: the
+    suite's other worker keeps the second core busy, and a second server's imports and
+    warm-up cost about 10 s of CPU for nothing."""
     forks: queue.Queue = queue.Queue()
-    servers = [Forks() for _ in range(2)]
+    servers = [Forks()]
     for server in servers:
         forks.put(server)
     yield forks
@@ -273,7 +275,8 @@ def cli_servers():
 
 @pytest.fixture(scope="module")
 def cli_runs(request, tmp_path_factory, cli_servers):
-    """The selected cases, two at a time (two fork servers)."""
+    """The selected cases, each in a forked child of the fork server (a second thread
+    prepares the next case's files meanwhile)."""
     selected = [
         item.callspec.params["case"]
         for item in request.session.items
