@@ -77,9 +77,12 @@ def _fit(config: str, tmp_path, *extra: str):
     return cli
 
 
+@pytest.mark.slow
 def test_energy_decays_for_the_dissipative_hnn_and_not_for_the_hnn(tmp_path):
     """The measured pendulum, fast recipes: the dissipative model's rollout of the
-    held-out segment loses energy and ``H_θ``; the HNN's keeps both."""
+    held-out segment loses energy and ``H_θ``; the HNN's keeps both. (Two fits judged on
+    their results: the slow tier. The field's decay is in the default tier:
+    ``test_rayleigh_friction_is_the_damped_oscillator``.)"""
     out = {}
     for name in ("real_pendulum_fast_dissipative.yaml", "real_pendulum_fast.yaml"):
         cli = _fit(name, tmp_path)
@@ -93,15 +96,20 @@ def test_energy_decays_for_the_dissipative_hnn_and_not_for_the_hnn(tmp_path):
     assert m_h["conserved_drift"] < 1e-6
 
 
-def test_central_differences_carry_the_measured_decay(tmp_path):
-    """Forward differences read as extra friction; on central differences the
-    dissipative model's energy slope lands near the measured one."""
+def test_central_differences_are_centred_on_the_measured_samples(tmp_path):
     dm = RealPendulumData(cache_dir=str(tmp_path), dtype="float64", differences="central")
     dm.setup()
     t, y = load_real_pendulum()
     assert dm.x_train.shape == (444, 2) and dm.x_test.shape == (110, 2)
     torch.testing.assert_close(dm.x_test, y[445:555])
     torch.testing.assert_close(dm.dx_test[0], (y[446] - y[444]) / (t[446] - t[444]))
+
+
+@pytest.mark.slow
+def test_central_differences_carry_the_measured_decay(tmp_path):
+    """Forward differences read as extra friction; on central differences the
+    dissipative model's energy slope lands near the measured one (a fit judged on its
+    result: the slow tier)."""
     cli = _fit("real_pendulum_fast_dissipative.yaml", tmp_path, "--data.differences=central")
     metrics, _ = evaluation.evaluate(cli.model, cli.datamodule, CLEAN)
     ratio = metrics["energy_drift_slope"] / metrics["true_energy_drift_slope"]
