@@ -470,6 +470,7 @@ FAULTS = [
         "kill -9 of `reproduce`",
         "its worker dies with it (PR_SET_PDEATHSIG, and a thread watching the parent), "
         "so does the resource tracker",
+        "test_killing_the_pool_s_parent_leaves_no_worker_or_resource_tracker, "
         "test_killing_reproduce_leaves_no_worker_or_resource_tracker",
     ),
     (
