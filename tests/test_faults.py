@@ -634,17 +634,22 @@ def _wait_for(condition, seconds: float = 120.0) -> bool:
 linux_only = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 
 
-@pytest.mark.slow
-@linux_only
-def test_killing_reproduce_leaves_no_worker_or_resource_tracker(tmp_path):
-    """``reproduce`` itself, its worker training: :func:`test_killing_the_pool_s_parent_
-    leaves_no_worker_or_resource_tracker` is the same pool with runs that wait."""
-    proc = _reproduce(tmp_path)
+def _kill_leaves_no_child(proc: subprocess.Popen) -> None:
+    """Once ``proc`` runs its pool worker and the resource tracker, SIGKILL it (no handler
+    runs); both children must exit by themselves."""
     assert _wait_for(lambda: _worker(proc.pid) is not None and len(_children(proc.pid)) >= 2)
     children = _children(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert _wait_for(lambda: not any(Path(f"/proc/{c}").exists() for c in children), 30)
+
+
+@pytest.mark.slow
+@linux_only
+def test_killing_reproduce_leaves_no_worker_or_resource_tracker(tmp_path):
+    """``reproduce`` itself, its worker training: :func:`test_killing_the_pool_s_parent_
+    leaves_no_worker_or_resource_tracker` is the same pool with runs that wait."""
+    _kill_leaves_no_child(_reproduce(tmp_path))
 
 
 @pytest.mark.slow
@@ -710,12 +715,7 @@ def _waiting_runs(tmp: Path) -> subprocess.Popen:
 def test_killing_the_pool_s_parent_leaves_no_worker_or_resource_tracker(tmp_path):
     """SIGKILL to the process that runs the pool (no handler runs): its worker and the
     resource tracker exit by themselves."""
-    proc = _waiting_runs(tmp_path)
-    assert _wait_for(lambda: _worker(proc.pid) is not None and len(_children(proc.pid)) >= 2)
-    children = _children(proc.pid)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
-    assert _wait_for(lambda: not any(Path(f"/proc/{c}").exists() for c in children), 30)
+    _kill_leaves_no_child(_waiting_runs(tmp_path))
 
 
 @linux_only
